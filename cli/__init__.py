@@ -1,0 +1,1 @@
+"""The ``repro`` command: thin argument parsing over the library."""

@@ -1,0 +1,69 @@
+"""Entry point of the ``repro`` console script.
+
+Each command group lives in ``cli/commands/<name>.py`` and exposes ``register(subparsers)``,
+which adds its sub-commands and sets ``func`` on them.  A :class:`repro.errors.ReproError`
+raised anywhere ends the command with one line on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from repro import __version__
+
+# Command-group modules in help order.  A module not (yet) present is skipped, so the command
+# grows as the library does; a module that is present but broken fails loudly.
+COMMAND_MODULES = (
+    "tables",   # list, plan, run, show, rescore, verify
+    "spec",     # spec check | schema
+    "data",     # data prepare | info | bundle
+    "eval",     # eval classifier | real
+    "runs",     # runs ls | show | diff | reindex
+    "cache",    # cache ls | verify | gc
+    "doctor",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="repro",
+        description="Reproduce the tables of Neural Marionette, MultiAct and ODMO, "
+        "with intervals and verdicts.",
+    )
+    parser.add_argument("--version", action="version", version=f"repro {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMAND_MODULES:
+        try:
+            mod = importlib.import_module(f"cli.commands.{name}")
+        except ModuleNotFoundError as e:
+            if e.name == f"cli.commands.{name}":
+                continue
+            raise
+        mod.register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    func = getattr(args, "func", None)
+    if func is None:
+        parser.print_help()
+        return 0
+    from repro.errors import ReproError
+
+    try:
+        rc = func(args)
+    except ReproError as e:
+        print(f"repro: error: {e}", file=sys.stderr)
+        return e.exit_code
+    except KeyboardInterrupt:
+        print("repro: interrupted", file=sys.stderr)
+        return 130
+    return int(rc or 0)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Generative methods, one module each, all behind :class:`repro.models.base.Generator`."""
