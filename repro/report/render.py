@@ -1,0 +1,173 @@
+"""Renderers of a :class:`~repro.report.view.TableView`: term, md, latex, html, json, csv.
+
+Every format shows, per cell, the paper's printed value and ours (mean, the paper-style ± in
+the table's own interval convention, and our bootstrap interval), says "not implemented",
+"data unavailable" or "not run" in words, marks a stand-in data set visibly, lists each claim
+with its verdict and probability, and ends with the footer (evaluator fingerprint, interval
+method, scale, run, spec version).
+"""
+
+from __future__ import annotations
+
+import csv
+import html
+import io
+import json
+import math
+
+from repro.report.view import OK, CellView, TableView
+
+FORMATS = ("term", "md", "latex", "html", "json", "csv")
+
+
+def _num(x: float | None, digits: int = 3) -> str:
+    if x is None or not math.isfinite(x):
+        return "-"
+    a = abs(x)
+    if a != 0 and (a >= 1e4 or a < 1e-3):
+        return f"{x:.2e}"
+    return f"{x:.{digits}f}"
+
+
+def ours_text(c: CellView) -> str:
+    """Our value as text: ``mean ±pm [lo, hi]`` or the status in words."""
+    if c.status != OK:
+        return c.status
+    s = _num(c.value)
+    if c.paper_pm is not None:
+        s += f" ±{_num(c.paper_pm)}"
+    if c.ci is not None:
+        s += f" [{_num(c.ci[0])}, {_num(c.ci[1])}]"
+    return s
+
+
+def paper_text(c: CellView) -> str:
+    return c.reported if c.reported is not None else "-"
+
+
+def _arrow(direction: str) -> str:
+    return {"lower": "↓", "higher": "↑", "closer_to_real": "→real"}.get(direction, "")
+
+
+def _title(view: TableView) -> str:
+    t = f"{view.id}: {view.title}"
+    if view.standin:
+        t += f"  [STAND-IN DATA: {view.standin}]"
+    return t
+
+
+def _claim_line(cl) -> str:
+    p = "" if cl.probability is None else f" (P = {cl.probability:.3f})"
+    r = f" — {cl.reason}" if cl.reason else ""
+    return f"{cl.verdict.upper()}{p}: {cl.text}{r}"
+
+
+def render(view: TableView, fmt: str = "term") -> str:
+    if fmt not in FORMATS:
+        from repro.errors import ConfigError
+
+        raise ConfigError(f"unknown format {fmt!r}; choose one of {', '.join(FORMATS)}")
+    return globals()[f"_render_{fmt}"](view)
+
+
+def _render_term(view: TableView) -> str:
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=_title(view), show_lines=False, title_justify="left")
+    table.add_column("row")
+    table.add_column("")
+    for col in view.columns:
+        unit = f" ({col.unit})" if col.unit else ""
+        table.add_column(f"{col.label}{_arrow(col.direction)}{unit}", overflow="fold")
+    for row in view.rows:
+        table.add_row(row.label, "paper", *[paper_text(row.cells.get(c.id, CellView())) for c in view.columns])
+        ours = [ours_text(row.cells.get(c.id, CellView(status=row.status))) for c in view.columns]
+        table.add_row("", "ours", *ours, end_section=True)
+    buf = io.StringIO()
+    console = Console(file=buf, width=max(100, 26 * (len(view.columns) + 1)), force_terminal=False,
+                      color_system=None)
+    console.print(table)
+    if view.claims:
+        console.print("Claims:")
+        for cl in view.claims:
+            console.print(f"  {_claim_line(cl)}", highlight=False)
+    for line in view.footer:
+        console.print(line, highlight=False)
+    return buf.getvalue()
+
+
+def _render_md(view: TableView) -> str:
+    head = ["row", ""] + [f"{c.label}{_arrow(c.direction)}" for c in view.columns]
+    lines = [f"### {_title(view)}", "", "| " + " | ".join(head) + " |",
+             "|" + "---|" * len(head)]
+    for row in view.rows:
+        lines.append("| " + " | ".join([row.label, "paper"] + [paper_text(row.cells.get(c.id, CellView()))
+                                                              for c in view.columns]) + " |")
+        lines.append("| " + " | ".join(["", "ours"] + [ours_text(row.cells.get(c.id, CellView(status=row.status)))
+                                                       for c in view.columns]) + " |")
+    if view.claims:
+        lines += ["", "**Claims**", ""] + [f"- {_claim_line(cl)}" for cl in view.claims]
+    if view.footer:
+        lines += [""] + [f"{x}  " for x in view.footer]
+    return "\n".join(lines) + "\n"
+
+
+def _tex(s: str) -> str:
+    for a, b in (("\\", r"\textbackslash{}"), ("&", r"\&"), ("%", r"\%"), ("_", r"\_"),
+                 ("#", r"\#"), ("±", r"$\pm$"), ("↓", r"$\downarrow$"), ("↑", r"$\uparrow$"),
+                 ("→", r"$\rightarrow$")):
+        s = s.replace(a, b)
+    return s
+
+
+def _render_latex(view: TableView) -> str:
+    n = len(view.columns)
+    out = [r"\begin{table}[t]", r"\centering", r"\caption{" + _tex(_title(view)) + "}",
+           r"\begin{tabular}{ll" + "c" * n + "}", r"\toprule",
+           " & & " + " & ".join(_tex(c.label + _arrow(c.direction)) for c in view.columns) + r" \\",
+           r"\midrule"]
+    for row in view.rows:
+        out.append(_tex(row.label) + " & paper & " + " & ".join(
+            _tex(paper_text(row.cells.get(c.id, CellView()))) for c in view.columns) + r" \\")
+        out.append(" & ours & " + " & ".join(
+            _tex(ours_text(row.cells.get(c.id, CellView(status=row.status)))) for c in view.columns) + r" \\")
+    out += [r"\bottomrule", r"\end{tabular}", r"\end{table}"]
+    out += ["% " + _claim_line(cl) for cl in view.claims] + ["% " + x for x in view.footer]
+    return "\n".join(out) + "\n"
+
+
+def _render_html(view: TableView) -> str:
+    e = html.escape
+    out = [f"<h3>{e(_title(view))}</h3>", "<table>", "<tr><th>row</th><th></th>" +
+           "".join(f"<th>{e(c.label + _arrow(c.direction))}</th>" for c in view.columns) + "</tr>"]
+    for row in view.rows:
+        out.append(f"<tr><td>{e(row.label)}</td><td>paper</td>" + "".join(
+            f"<td>{e(paper_text(row.cells.get(c.id, CellView())))}</td>" for c in view.columns) + "</tr>")
+        out.append("<tr><td></td><td>ours</td>" + "".join(
+            f"<td>{e(ours_text(row.cells.get(c.id, CellView(status=row.status))))}</td>" for c in view.columns) + "</tr>")
+    out.append("</table>")
+    if view.claims:
+        out.append("<ul>" + "".join(f"<li>{e(_claim_line(cl))}</li>" for cl in view.claims) + "</ul>")
+    out += [f"<p>{e(x)}</p>" for x in view.footer]
+    return "\n".join(out) + "\n"
+
+
+def _render_json(view: TableView) -> str:
+    return json.dumps(view.to_dict(), indent=2, sort_keys=True) + "\n"
+
+
+def _render_csv(view: TableView) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(["table", "row", "method", "column", "status", "paper", "value", "paper_pm",
+                "ci_lo", "ci_hi", "n"])
+    for row in view.rows:
+        for c in view.columns:
+            cell = row.cells.get(c.id, CellView(status=row.status))
+            w.writerow([view.id, row.id, row.method, c.id, cell.status, cell.reported or "",
+                        "" if cell.value is None else repr(cell.value),
+                        "" if cell.paper_pm is None else repr(cell.paper_pm),
+                        "" if cell.ci is None else repr(cell.ci[0]),
+                        "" if cell.ci is None else repr(cell.ci[1]), cell.n])
+    return buf.getvalue()
