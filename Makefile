@@ -25,3 +25,39 @@ test:
 
 test-all:
 	$(PY) -m pytest -q -m ''
+
+# --- tables ----------------------------------------------------------------------------------
+# `make table3` = Neural Marionette Table 3 (the brief's main job); every spec also has its own
+# target: marionette-table1 ... odmo-tableS1.  SCALE=quick|medium|paper, DATASET=... overrides.
+MARIONETTE := table1 table2 table3 table4 table5 fig8 fig10
+MULTIACT := table1 table2 table3 tableA tableB fig6
+ODMO := table1 table2 table3 table4 tableS1
+DATASET_FLAG := $(if $(DATASET),--dataset $(DATASET),)
+ALL_TABLES := $(addprefix marionette/,$(MARIONETTE)) $(addprefix multiact/,$(MULTIACT)) $(addprefix odmo/,$(ODMO))
+# Tables whose methods exist and that CI reruns at the quick scale against tables/baselines/quick.
+CI_TABLES ?= marionette/table1
+BASELINES := tables/baselines/$(SCALE)
+
+.PHONY: table1 table2 table3 table4 table5 tables ci-tables baselines \
+	$(addprefix marionette-,$(MARIONETTE)) $(addprefix multiact-,$(MULTIACT)) $(addprefix odmo-,$(ODMO))
+
+table1 table2 table3 table4 table5: %: marionette-%
+
+$(addprefix marionette-,$(MARIONETTE)): marionette-%:
+	$(REPRO) run marionette/$* --scale $(SCALE) $(DATASET_FLAG) --jobs $(JOBS) $(RUNFLAGS)
+$(addprefix multiact-,$(MULTIACT)): multiact-%:
+	$(REPRO) run multiact/$* --scale $(SCALE) $(DATASET_FLAG) --jobs $(JOBS) $(RUNFLAGS)
+$(addprefix odmo-,$(ODMO)): odmo-%:
+	$(REPRO) run odmo/$* --scale $(SCALE) $(DATASET_FLAG) --jobs $(JOBS) $(RUNFLAGS)
+
+tables:
+	$(REPRO) run $(ALL_TABLES) --scale $(SCALE) $(DATASET_FLAG) --jobs $(JOBS) $(RUNFLAGS)
+
+# CI regression: rerun the built tables at the quick scale and compare with committed baselines.
+ci-tables:
+	$(REPRO) run $(CI_TABLES) --scale quick --quiet
+	$(REPRO) verify $(CI_TABLES) --scale quick --baseline tables/baselines/quick
+
+# Rewrite the committed baselines from the newest quick runs (review the diff before committing).
+baselines:
+	$(REPRO) verify $(CI_TABLES) --scale quick --baseline tables/baselines/quick --update

@@ -1,0 +1,267 @@
+"""``repro runs ls | show | diff | reindex``: the run registry (folders + SQLite index)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from typing import Any
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("runs", help="list, show and compare recorded runs",
+                              description="Run records under REPRO_HOME/runs, indexed in "
+                                          "REPRO_HOME/runs.sqlite.")
+    sub = p.add_subparsers(dest="runs_command", metavar="SUBCOMMAND")
+    p.set_defaults(func=lambda args: (p.print_help(), 0)[1])
+
+    ls = sub.add_parser("ls", help="list runs, newest first")
+    ls.add_argument("--table", help="only runs of this table (e.g. marionette/table3)")
+    ls.add_argument("--status", help="only runs with this status (FINISHED, FAILED, ...)")
+    ls.add_argument("--limit", type=int, default=None, help="at most this many")
+    ls.add_argument("--json", action="store_true", help="machine-readable output")
+    ls.set_defaults(func=_ls)
+
+    show = sub.add_parser("show", help="one run: status, environment, jobs, cell values")
+    show.add_argument("run", help="run id, a unique prefix of one, or 'latest'")
+    show.add_argument("--json", action="store_true", help="run.json, values and summary as JSON")
+    show.set_defaults(func=_show)
+
+    diff = sub.add_parser("diff", help="compare runs side by side (runs as columns)")
+    diff.add_argument("runs", nargs="+", metavar="RUN", help="two or more runs")
+    diff.add_argument("--only-diff", action="store_true", help="only fields that differ")
+    diff.add_argument("--json", action="store_true", help="machine-readable output")
+    diff.set_defaults(func=_diff)
+
+    ri = sub.add_parser("reindex", help="rebuild runs.sqlite from the run folders")
+    ri.set_defaults(func=_reindex)
+
+
+# ---------------------------------------------------------------------- helpers
+def _fmt_num(v: Any) -> str:
+    if v is None:
+        return "—"
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            return str(v)
+        return f"{v:.4g}"
+    return str(v)
+
+
+def _cells(values: list[dict]) -> dict[tuple[str, str], dict[str, Any]]:
+    """(row, column) -> mean, n, min, max over replicates (null values counted apart)."""
+    acc: dict[tuple[str, str], list] = {}
+    for v in values:
+        acc.setdefault((str(v["row"]), str(v["column"])), []).append(v.get("value"))
+    out = {}
+    for rc, vals in acc.items():
+        xs = [float(x) for x in vals if x is not None]
+        out[rc] = {"mean": sum(xs) / len(xs) if xs else None, "n": len(xs),
+                   "missing": len(vals) - len(xs), "min": min(xs) if xs else None,
+                   "max": max(xs) if xs else None}
+    return out
+
+
+def _flatten(prefix: str, obj: Any, out: dict[str, str]) -> None:
+    if isinstance(obj, dict) and obj:
+        for k in sorted(obj):
+            _flatten(f"{prefix}.{k}" if prefix else str(k), obj[k], out)
+    else:
+        out[prefix] = obj if isinstance(obj, str) else json.dumps(obj, sort_keys=True)
+
+
+def _duration(run: dict) -> str:
+    from datetime import datetime
+
+    if not run.get("started") or not run.get("ended"):
+        return "—"
+    f = "%Y-%m-%dT%H:%M:%S.%fZ"
+    try:
+        s = (datetime.strptime(run["ended"], f) - datetime.strptime(run["started"], f))
+    except ValueError:
+        return "—"
+    return f"{s.total_seconds():.1f} s"
+
+
+def _esc(v: Any) -> str:
+    from rich.markup import escape
+
+    return escape("—" if v is None else str(v))
+
+
+def _console():
+    from rich.console import Console
+
+    return Console()
+
+
+# ---------------------------------------------------------------------- commands
+def _ls(args: argparse.Namespace) -> int:
+    from repro.store.index import RunIndex
+
+    rows = RunIndex().list(table=args.table, status=args.status, limit=args.limit)
+    if args.json:
+        print(json.dumps(rows, indent=2))
+        return 0
+    from rich.table import Table
+
+    t = Table()
+    for col in ("run", "status", "table", "scale", "dataset", "created", "jobs (hit/new)",
+                "values", "commit"):
+        t.add_column(col)
+    colour = {"FINISHED": "green", "FAILED": "red", "INTERRUPTED": "yellow", "RUNNING": "cyan"}
+    for r in rows:
+        st = r["status"]
+        t.add_row(r["run_id"], f"[{colour.get(st, 'white')}]{st}[/]", _esc(r["table_id"]),
+                  _esc(r["scale"]), _esc(r["dataset"]),
+                  (r["created"] or "")[:19].replace("T", " "),
+                  f"{r['n_jobs']} ({r['n_hits']}/{r['n_computed']})", str(r["n_values"]),
+                  ((r["git_commit"] or "—")[:10] + ("+" if r["git_dirty"] else "")))
+    con = _console()
+    con.print(t)
+    con.print(f"{len(rows)} runs")
+    return 0
+
+
+def _show(args: argparse.Namespace) -> int:
+    from repro.store.runs import load_run, resolve_run
+
+    rec = load_run(resolve_run(args.run))
+    run = rec.run
+    if args.json:
+        print(json.dumps({"run": run, "values": rec.values, "summary": rec.summary}, indent=2))
+        return 0
+    from rich.table import Table
+
+    con = _console()
+    con.print(f"[bold]{run['run_id']}[/]  {run['status']}  {_esc(run.get('table') or '')}")
+    env = run.get("env") or {}
+    git = run.get("git") or {}
+    spec = run.get("spec") or {}
+    info = [
+        ("scale / dataset", f"{run.get('scale') or '—'} / {run.get('dataset') or '—'}"),
+        ("spec", f"version {spec.get('version')}, hash {str(spec.get('hash'))[:12]}"),
+        ("created / started / ended",
+         f"{run.get('created')} / {run.get('started')} / {run.get('ended')}"),
+        ("duration", _duration(run)),
+        ("git", f"{git.get('commit')}" + (f" + changes {str(git.get('diff_sha256'))[:12]}"
+                                          if git.get("dirty") else "") if git else "—"),
+        ("device / dtype / threads",
+         f"{env.get('device')} / {env.get('dtype')} / {env.get('threads')}"),
+        ("host", f"{env.get('host')} (pid {env.get('pid')})"),
+        ("packages", ", ".join(f"{k} {v}" for k, v in (run.get("packages") or {}).items())),
+        ("command", " ".join(run.get("command") or [])),
+    ]
+    jobs = run.get("jobs") or []
+    counts: dict[str, int] = {}
+    for j in jobs:
+        counts[j.get("status")] = counts.get(j.get("status"), 0) + 1
+    info.append(("jobs", ", ".join(f"{n} {s}" for s, n in sorted(counts.items())) or "—"))
+    keys = run.get("keys") or {}
+    info.append(("store keys", f"{len(keys.get('read') or [])} read, "
+                               f"{len(keys.get('written') or [])} written"))
+    if run.get("error"):
+        info.append(("error", run["error"]))
+    if run.get("note"):
+        info.append(("note", run["note"]))
+    t = Table(show_header=False, box=None)
+    t.add_column(style="dim")
+    t.add_column()
+    for k, v in info:
+        t.add_row(k, f"[red]{_esc(v)}[/]" if k == "error" else _esc(v))
+    con.print(t)
+    if jobs:
+        jt = Table(title="jobs", title_justify="left")
+        for col in ("job", "kind", "status", "seconds", "key"):
+            jt.add_column(col)
+        for j in jobs:
+            jt.add_row(_esc(j.get("label") or j.get("kind")), _esc(j.get("kind")),
+                       _esc(j.get("status")),
+                       _fmt_num(j.get("seconds")), str(j.get("key"))[:12])
+        con.print(jt)
+    cells = _cells(rec.values)
+    if cells:
+        ct = Table(title="cells (mean over replicates)", title_justify="left")
+        for col in ("row", "column", "mean", "n", "min", "max"):
+            ct.add_column(col, justify="left" if col in ("row", "column") else "right")
+        for (r, c), s in cells.items():
+            ct.add_row(_esc(r), _esc(c), _fmt_num(s["mean"]), str(s["n"]), _fmt_num(s["min"]),
+                       _fmt_num(s["max"]))
+        con.print(ct)
+    if rec.summary is not None:
+        con.print(f"summary: {rec.path / 'summary.json'}")
+    return 0
+
+
+def diff_rows(records) -> list[dict[str, Any]]:
+    """Rows of ``repro runs diff``: {section, field, values (one per run), differs}."""
+    sections: dict[str, list[dict[str, str]]] = {"config": [], "environment": [], "cells": []}
+    for rec in records:
+        run = rec.run
+        cfg: dict[str, str] = {}
+        _flatten("", run.get("config") or {}, cfg)
+        env: dict[str, str] = {}
+        _flatten("", {"status": run.get("status"), "table": run.get("table"),
+                      "scale": run.get("scale"), "dataset": run.get("dataset"),
+                      "spec": run.get("spec"), "git": run.get("git"),
+                      "env": {k: v for k, v in (run.get("env") or {}).items()
+                              if k not in ("pid", "pid_start")},
+                      "packages": run.get("packages"), "duration": _duration(run)}, env)
+        cells = {f"{r} | {c}": (f"{_fmt_num(s['mean'])} (n={s['n']})" if s["n"] else "—")
+                 for (r, c), s in _cells(rec.values).items()}
+        sections["config"].append(cfg)
+        sections["environment"].append(env)
+        sections["cells"].append(cells)
+    rows = []
+    for section, per_run in sections.items():
+        names: list[str] = []
+        for d in per_run:
+            names.extend(n for n in d if n not in names)
+        if section != "cells":
+            names.sort()
+        for n in names:
+            vals = [d.get(n) for d in per_run]
+            rows.append({"section": section, "field": n, "values": vals,
+                         "differs": len({json.dumps(v) for v in vals}) > 1})
+    return rows
+
+
+def _diff(args: argparse.Namespace) -> int:
+    from repro.errors import ConfigError
+    from repro.store.runs import load_run, resolve_run
+
+    if len(args.runs) < 2:
+        raise ConfigError("runs diff needs at least two runs")
+    records = [load_run(resolve_run(r)) for r in args.runs]
+    rows = diff_rows(records)
+    if args.only_diff:
+        rows = [r for r in rows if r["differs"]]
+    if args.json:
+        print(json.dumps({"runs": [r.run_id for r in records], "rows": rows}, indent=2))
+        return 0
+    from rich.table import Table
+
+    t = Table()
+    t.add_column("section", style="dim")
+    t.add_column("field")
+    for r in records:
+        t.add_column(r.run_id)
+    for row in rows:
+        vals = [_esc(v) for v in row["values"]]
+        if row["differs"]:
+            vals = [f"[yellow]{v}[/]" for v in vals]
+        t.add_row(row["section"], _esc(row["field"]), *vals)
+    con = _console()
+    con.print(t)
+    n = sum(1 for r in rows if r["differs"])
+    con.print(f"{n} fields differ" + ("" if args.only_diff else f" of {len(rows)}"))
+    return 0
+
+
+def _reindex(args: argparse.Namespace) -> int:
+    from repro.store.index import RunIndex
+
+    idx = RunIndex()
+    n = idx.reindex()
+    print(f"indexed {n} runs into {idx.path}")
+    return 0

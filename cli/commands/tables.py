@@ -1,0 +1,173 @@
+"""``repro list | plan | run | show | rescore | verify``: tables from spec to report."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+SCALES = ("quick", "medium", "paper")
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scale", default="quick", help="quick | medium | paper (default: quick)")
+    p.add_argument("--dataset", default=None, help="override the scale profile's data set")
+
+
+def register(sub) -> None:
+    p = sub.add_parser("list", help="every table spec with its state")
+    p.add_argument("--scale", default="quick")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_list)
+
+    p = sub.add_parser("plan", help="what a run would do: jobs, keys, cache hits, and why")
+    p.add_argument("table")
+    _common(p)
+    p.add_argument("--why", action="store_true", help="for a miss, say which part of the key changed")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_plan)
+
+    p = sub.add_parser("run", help="train/load, sample, measure and print one or more tables")
+    p.add_argument("tables", nargs="+", metavar="TABLE")
+    _common(p)
+    p.add_argument("--jobs", type=int, default=1, help="jobs run at once (default 1)")
+    p.add_argument("--force", nargs="?", const=True, default=None, metavar="KIND",
+                   help="recompute everything, or only jobs of KIND (train, generate, measure, ...)")
+    p.add_argument("--format", default="term", help="term | md | latex | html | json | csv")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("show", help="print a table from its newest run (no computing)")
+    p.add_argument("table")
+    _common(p)
+    p.add_argument("--run", default=None, help="a run id (default: the newest finished run)")
+    p.add_argument("--format", default="term", help="term | md | latex | html | json | csv")
+    p.set_defaults(func=cmd_show)
+
+    p = sub.add_parser("rescore", help="recompute metrics and intervals from stored samples")
+    p.add_argument("table")
+    _common(p)
+    p.add_argument("--format", default="term")
+    p.set_defaults(func=cmd_rescore)
+
+    p = sub.add_parser("verify", help="compare the newest run with a committed baseline (exit 1 on drift)")
+    p.add_argument("tables", nargs="+", metavar="TABLE")
+    _common(p)
+    p.add_argument("--baseline", required=True, help="baseline folder, e.g. tables/baselines/quick")
+    p.add_argument("--update", action="store_true", help="write the baseline from the newest run")
+    p.set_defaults(func=cmd_verify)
+
+
+def cmd_list(args) -> int:
+    from repro.engine.runner import latest_run
+    from repro.specs.load import load_all
+
+    rows = []
+    for sid, spec in sorted(load_all().items()):
+        run = latest_run(sid, args.scale)
+        rows.append({"table": sid, "title": spec.title, "protocol": spec.protocol,
+                     "rows": len(spec.rows), "reported": spec.n_reported(),
+                     "last_run": run.name if run else None})
+    if args.json:
+        print(json.dumps(rows, indent=2))
+        return 0
+    from rich.console import Console
+    from rich.table import Table
+
+    t = Table(title=f"tables (last run at scale {args.scale})", title_justify="left")
+    for h in ("table", "title", "protocol", "rows", "reported cells", "last run"):
+        t.add_column(h)
+    for r in rows:
+        t.add_row(r["table"], r["title"], r["protocol"], str(r["rows"]), str(r["reported"]),
+                  r["last_run"] or "-")
+    Console(width=140).print(t)
+    return 0
+
+
+def cmd_plan(args) -> int:
+    from repro.engine.runner import plan_table
+
+    entries = plan_table(args.table, scale=args.scale, dataset=args.dataset, why=args.why)
+    if args.json:
+        print(json.dumps(entries, indent=2))
+        return 0
+    n_hit = sum(1 for e in entries if e["cached"])
+    n_job = sum(1 for e in entries if e["kind"] != "row")
+    for e in entries:
+        mark = "cached" if e["cached"] else ("-" if e["kind"] == "row" else "run")
+        line = f"{mark:7} {e['kind']:13} {e['job']:40} {e['key']}"
+        if e.get("why") and (args.why or e["kind"] == "row"):
+            line += f"  ({e['why']})"
+        print(line)
+    print(f"{n_job} jobs, {n_hit} cached, {n_job - n_hit} to run")
+    return 0
+
+
+def cmd_run(args) -> int:
+    from repro.engine.runner import run_table, table_view
+    from repro.report import render
+
+    for name in args.tables:
+        plan, summary, run_id = run_table(name, scale=args.scale, dataset=args.dataset,
+                                          jobs=args.jobs, force=args.force,
+                                          progress=not args.quiet and sys.stderr.isatty())
+        counts = summary.get("counts", {})
+        print(f"repro: {plan.spec.id}: run {run_id} "
+              f"({', '.join(f'{v} {k}' for k, v in sorted(counts.items())) or 'nothing to compute'})",
+              file=sys.stderr)
+        view = table_view(name, scale=args.scale, dataset=args.dataset, run=run_id)
+        sys.stdout.write(render(view, args.format))
+    return 0
+
+
+def cmd_show(args) -> int:
+    from repro.engine.runner import table_view
+    from repro.report import render
+
+    view = table_view(args.table, scale=args.scale, dataset=args.dataset, run=args.run)
+    sys.stdout.write(render(view, args.format))
+    return 0
+
+
+def cmd_rescore(args) -> int:
+    from repro.engine.runner import run_table, table_view
+    from repro.report import render
+
+    _, _, run_id = run_table(args.table, scale=args.scale, dataset=args.dataset,
+                             force="measure", progress=sys.stderr.isatty())
+    sys.stdout.write(render(table_view(args.table, scale=args.scale, dataset=args.dataset,
+                                       run=run_id), args.format))
+    return 0
+
+
+def cmd_verify(args) -> int:
+    import json as _json
+    from pathlib import Path
+
+    from repro.engine.baselines import write_baseline
+    from repro.engine.runner import _scale, _spec, latest_run, verify_table
+    from repro.errors import ConfigError
+
+    failed = False
+    for name in args.tables:
+        spec = _spec(name)
+        if args.update:
+            sc = _scale(args.scale, args.dataset)
+            ds = args.dataset or sc.dataset_for(spec)
+            path = latest_run(spec.id, sc.name, ds)
+            if path is None:
+                raise ConfigError(f"no finished run of {spec.id} at scale {sc.name} to write a baseline from")
+            summary = _json.loads((path / "summary.json").read_text())
+            out = write_baseline(Path(args.baseline), summary, scale=sc.name, dataset=ds,
+                                 run_id=path.name)
+            print(f"repro: wrote {out}")
+            continue
+        problems = verify_table(name, args.baseline, scale=args.scale, dataset=args.dataset)
+        if problems:
+            failed = True
+            print(f"repro: {spec.id}: {len(problems)} problem(s) against the baseline:")
+            for p in problems:
+                print(f"  {p}")
+        else:
+            print(f"repro: {spec.id}: matches the baseline")
+    return 1 if failed else 0

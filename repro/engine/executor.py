@@ -1,0 +1,475 @@
+"""Local execution of a job graph (issue 4, item 3).
+
+:func:`execute` runs the graph that reaches ``targets``:
+
+1. **Decide** (consumers first): a needed job whose object is in the store and verifies is a
+   *hit*; a corrupt one is quarantined and becomes a run; a job nothing needs (everything
+   downstream of it is stored) is not touched.  Forced kinds/labels and uncacheable jobs run.
+2. **Run** the remaining jobs in dependency order through :meth:`Store.compute` (file lock per
+   key, re-check, atomic publish), so two processes running the same graph compute each job
+   once: the second waits on the lock and reads the first one's object (reported as a hit).
+
+``jobs=1`` runs inline.  ``jobs=N>1`` uses a :class:`~concurrent.futures.ProcessPoolExecutor`
+with the ``spawn`` start method, not threads: torch keeps process-global state (the default
+generator that ``torch.nn`` initialisers draw from, the intra-op thread count), so concurrent
+jobs in threads would perturb each other's random streams and thread settings; ``spawn`` (not
+``fork``) because forking a process that has started torch/OpenMP threads can deadlock.  Each
+worker gets ``threads_per_job`` torch threads (default ``cpu_count // N``).
+
+Interrupts: Ctrl-C (SIGINT) or ``kill`` (SIGTERM, turned into ``KeyboardInterrupt`` while the
+graph runs) stops the graph; running jobs are interrupted, their temp output is removed, their
+scratch folder (checkpoints) is kept, finished jobs stay published, the run record is marked
+INTERRUPTED and ``KeyboardInterrupt`` is re-raised.  The same command again finds the finished
+jobs as hits and hands the interrupted job its scratch folder to resume from.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import os
+import queue
+import signal
+import sys
+import threading
+import time
+from collections.abc import Iterable
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from repro.engine import plan as planmod
+from repro.engine.job import Job, JobContext, topo_order
+from repro.store.objects import Store, StoredObject
+
+HIT = "hit"              # found in the store (or computed meanwhile by another process)
+COMPUTED = "computed"    # computed and published by this call
+UNCACHED = "uncached"    # run, but not cacheable: output is ephemeral
+SKIPPED = "skipped"      # not needed (downstream cached) and not in the store
+FAILED = "failed"
+INTERRUPTED = "interrupted"
+CANCELLED = "cancelled"  # not started because another job failed or the run was interrupted
+
+log = logging.getLogger("repro.engine")
+
+
+@dataclass
+class JobResult:
+    job: Job
+    key: str
+    status: str
+    seconds: float = 0.0
+    object: StoredObject | None = None
+    error: str | None = None
+
+    def as_record(self) -> dict[str, Any]:
+        """The job's line in ``run.json`` (``jobs`` list)."""
+        return {"kind": self.job.kind, "label": self.job.label, "impl": self.job.impl,
+                "key": self.key, "seed": self.job.seed, "status": self.status,
+                "seconds": round(float(self.seconds), 3), "error": self.error}
+
+
+@dataclass
+class ExecutionReport:
+    """Per-job results, inputs before consumers."""
+
+    results: list[JobResult] = field(default_factory=list)
+    interrupted: bool = False
+
+    def result(self, job_or_key: Job | str) -> JobResult:
+        k = job_or_key.key() if isinstance(job_or_key, Job) else job_or_key
+        for r in self.results:
+            if r.key == k:
+                return r
+        raise KeyError(f"no job with key {k[:12]} in this report")
+
+    def object(self, job: Job) -> StoredObject:
+        r = self.result(job)
+        if r.object is None:
+            raise KeyError(f"job {job.name} has no loaded object (status {r.status})")
+        return r.object
+
+    @property
+    def counts(self) -> dict[str, int]:
+        out: dict[str, int] = {}
+        for r in self.results:
+            out[r.status] = out.get(r.status, 0) + 1
+        return out
+
+    @property
+    def all_hits(self) -> bool:
+        """Nothing was computed: every job was a hit (or not needed)."""
+        return all(r.status in (HIT, SKIPPED) for r in self.results)
+
+
+class ProgressHook:
+    """Receives progress events (all no-ops here; see ``repro.engine.progress``)."""
+
+    def graph_started(self, entries: list[tuple[Job, str, str]]) -> None: ...
+    def job_started(self, job: Job, key: str) -> None: ...
+    def job_progress(self, job: Job, key: str, done: float, total: float | None,
+                     message: str | None) -> None: ...
+    def job_finished(self, result: JobResult) -> None: ...
+    def graph_finished(self, report: ExecutionReport) -> None: ...
+
+
+# ---------------------------------------------------------------------- running one job
+def _apply_threads(threads: int | None) -> None:
+    if not threads:
+        return
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(int(threads))
+    else:
+        for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+            os.environ[var] = str(int(threads))
+
+
+def _meta(job: Job) -> dict[str, Any]:
+    return {"label": job.label, "impl": job.impl, "seed": job.seed, "key_parts": job.key_parts()}
+
+
+def _job_logger(store: Store, job: Job, key: str) -> tuple[logging.Logger, logging.Handler]:
+    logger = logging.getLogger(f"repro.job.{job.kind}")
+    if logger.level == logging.NOTSET:
+        logger.setLevel(logging.INFO)
+    path = store.log_path(key)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handler = logging.FileHandler(path, encoding="utf-8")
+    handler.setFormatter(logging.Formatter(f"%(asctime)s %(levelname)s [{job.name}] %(message)s"))
+    logger.addHandler(handler)
+    return logger, handler
+
+
+def run_job(job: Job, key: str, inputs: tuple[StoredObject, ...], store: Store, *,
+            force: bool = False, threads: int | None = None, progress=None
+            ) -> tuple[str, StoredObject]:
+    """Run one job (inputs already resolved) and return ``(status, object)``."""
+    from repro.store.objects import _payload_files
+
+    fn = job.resolve()
+    _apply_threads(threads)
+    logger, handler = _job_logger(store, job, key)
+    try:
+        if job.cacheable:
+            def payload(out: Path) -> None:
+                scratch = store.scratch(key)
+                logger.info("start %s key %s (scratch %s)", job.impl, key[:12], scratch)
+                fn(JobContext(job, key, inputs, out, scratch, logger, threads, progress))
+
+            obj = store.compute(key, job.kind, payload, meta=_meta(job), force=force)
+            logger.info("%s", "found in the store" if obj.hit else "published")
+            return (HIT if obj.hit else COMPUTED), obj
+        from repro.keys import sha256_file
+        from repro.store.atomic import utc_now
+
+        root = store.ephemeral_dir()
+        out, scratch = root / "out", root / "scratch"
+        out.mkdir()
+        scratch.mkdir()
+        fn(JobContext(job, key, inputs, out, scratch, logger, threads, progress))
+        files = {rel: {"sha256": sha256_file(p), "size": p.stat().st_size}
+                 for rel, p in _payload_files(out)}
+        return UNCACHED, StoredObject(key, job.kind, out, files, utc_now(), _meta(job),
+                                      hit=False, ephemeral=True)
+    finally:
+        logger.removeHandler(handler)
+        handler.close()
+
+
+# ---------------------------------------------------------------------- worker processes
+_QUEUE = None
+_STOP = None
+
+
+def _put(msg) -> None:
+    try:
+        if _QUEUE is not None:
+            _QUEUE.put(msg)
+    except (OSError, ValueError, EOFError):  # parent gone or queue closed
+        pass
+
+
+def _worker_init(q, stop, threads: int | None) -> None:
+    global _QUEUE, _STOP
+    _QUEUE, _STOP = q, stop
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # idle workers ignore Ctrl-C
+    if threads:
+        for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+            os.environ[var] = str(int(threads))
+    _put(("pid", os.getpid()))
+
+
+def _worker_task(job: Job, key: str, inputs, root: str, force: bool, threads: int | None):
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        if _STOP is not None and _STOP.is_set():  # queued before the interrupt: do not start
+            raise KeyboardInterrupt
+        _put(("start", key))
+        t0 = time.perf_counter()
+
+        def progress(done, total=None, message=None):
+            _put(("progress", key, done, total, message))
+
+        status, obj = run_job(job, key, inputs, Store(root), force=force, threads=threads,
+                              progress=progress)
+        return status, obj, time.perf_counter() - t0
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+@contextmanager
+def _sigterm_as_interrupt(flag: dict):
+    """While active (main thread only), SIGTERM raises ``KeyboardInterrupt``."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        flag["sigterm"] = True
+        raise KeyboardInterrupt("SIGTERM")
+
+    old = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+# ---------------------------------------------------------------------- the graph
+def execute(targets: Iterable[Job], *, store: Store | None = None, jobs: int = 1,
+            force: bool | str | Iterable[str] | None = None, hook: ProgressHook | None = None,
+            recorder=None, threads_per_job: int | None = None) -> ExecutionReport:
+    """Run the graph reaching ``targets`` and return every job's (key, status, seconds, object).
+
+    ``force``: ``True`` recomputes everything, a kind/label (or several) recomputes those.
+    ``recorder``: a :class:`~repro.store.runs.RunRecorder`; it gets every job's record (keys
+    read and written) and is marked INTERRUPTED or FAILED when the graph stops early.
+    Re-raises ``KeyboardInterrupt`` and a failing job's exception (with a note naming the job).
+    """
+    store = store or Store()
+    hook = hook or ProgressHook()
+    targets = list(targets)
+    order = topo_order(targets)
+    by_key = {j.key(): j for j in order}
+    dec = planmod.decide(order, store, force, verify=True, targets=[t.key() for t in targets])
+    results: dict[str, JobResult] = {}
+    report = ExecutionReport()
+    if recorder is not None and getattr(recorder, "status", None) == "QUEUED":
+        recorder.start()
+
+    def finish(r: JobResult) -> None:
+        results[r.key] = r
+        if recorder is not None:
+            recorder.record_job(r.as_record())
+        if r.status in (HIT, COMPUTED):
+            try:
+                planmod.record(store, r.job)
+            except OSError as e:  # bookkeeping for --why must never fail a run
+                log.warning("could not record plan for %s: %s", r.job.name, e)
+        hook.job_finished(r)
+
+    hook.graph_started([(j, j.key(), dec[j.key()].action) for j in order])
+    for job in order:
+        d = dec[job.key()]
+        if d.action == planmod.HIT:
+            finish(JobResult(job, job.key(), HIT, 0.0, d.obj))
+        elif d.action == planmod.SKIP:
+            finish(JobResult(job, job.key(), SKIPPED))
+    to_run = [j for j in order if dec[j.key()].action == planmod.RUN]
+    if threads_per_job is None and jobs > 1:
+        threads_per_job = max(1, (os.cpu_count() or 1) // jobs)
+    flag: dict[str, bool] = {}
+    try:
+        with _sigterm_as_interrupt(flag):
+            if jobs <= 1 or len(to_run) <= 1:
+                _run_inline(to_run, dec, results, store, finish, hook, threads_per_job)
+            else:
+                _run_pool(to_run, dec, results, by_key, store, finish, hook, jobs,
+                          threads_per_job, flag)
+    except KeyboardInterrupt:
+        report.interrupted = True
+        for j in to_run:
+            if j.key() not in results:
+                finish(JobResult(j, j.key(), CANCELLED))
+        report.results = [results[j.key()] for j in order]
+        if recorder is not None:
+            recorder.interrupt("interrupted (SIGTERM)" if flag.get("sigterm") else "interrupted")
+        hook.graph_finished(report)
+        raise
+    except BaseException as e:
+        for j in to_run:
+            if j.key() not in results:
+                finish(JobResult(j, j.key(), CANCELLED))
+        report.results = [results[j.key()] for j in order]
+        failed = [r for r in report.results if r.status == FAILED]
+        if recorder is not None:
+            recorder.fail(failed[0].error if failed else f"{type(e).__name__}: {e}")
+        hook.graph_finished(report)
+        raise
+    report.results = [results[j.key()] for j in order]
+    hook.graph_finished(report)
+    return report
+
+
+def _annotate(e: BaseException, job: Job, key: str) -> None:
+    if hasattr(e, "add_note"):
+        e.add_note(f"while running job {job.name} ({job.impl}, key {key[:12]})")
+
+
+def _inputs(job: Job, results: dict[str, JobResult]) -> tuple[StoredObject, ...]:
+    objs = []
+    for j in job.inputs:
+        r = results.get(j.key())
+        if r is None or r.object is None:
+            raise RuntimeError(f"input {j.name} of {job.name} is not available")  # a bug
+        objs.append(r.object)
+    return tuple(objs)
+
+
+def _run_inline(to_run, dec, results, store, finish, hook, threads) -> None:
+    for job in to_run:
+        k = job.key()
+        inputs = _inputs(job, results)
+        hook.job_started(job, k)
+        t0 = time.perf_counter()
+
+        def progress(done, total=None, message=None, _job=job, _k=k):
+            hook.job_progress(_job, _k, done, total, message)
+
+        try:
+            status, obj = run_job(job, k, inputs, store, force=dec[k].forced, threads=threads,
+                                  progress=progress)
+        except KeyboardInterrupt:
+            finish(JobResult(job, k, INTERRUPTED, time.perf_counter() - t0))
+            raise
+        except BaseException as e:
+            finish(JobResult(job, k, FAILED, time.perf_counter() - t0,
+                             error=f"{type(e).__name__}: {e}"))
+            _annotate(e, job, k)
+            raise
+        finish(JobResult(job, k, status, time.perf_counter() - t0, obj))
+
+
+def _signal_all(pids: Iterable[int], sig: int) -> None:
+    for pid in list(pids):
+        try:
+            os.kill(pid, sig)
+        except (ProcessLookupError, PermissionError):
+            pass
+
+
+def _run_pool(to_run, dec, results, by_key, store, finish, hook, jobs, threads, flag) -> None:
+    ctx = multiprocessing.get_context("spawn")
+    q = ctx.Queue()
+    stop_workers = ctx.Event()
+    pids: set[int] = set()
+    stop = threading.Event()
+
+    def drain() -> None:
+        while True:
+            try:
+                msg = q.get(timeout=0.1)
+            except queue.Empty:
+                if stop.is_set():
+                    return
+                continue
+            except (EOFError, OSError, ValueError):
+                return
+            try:
+                if msg[0] == "pid":
+                    pids.add(msg[1])
+                elif msg[0] == "start":
+                    hook.job_started(by_key[msg[1]], msg[1])
+                elif msg[0] == "progress":
+                    _, k, done, total, message = msg
+                    hook.job_progress(by_key[k], k, done, total, message)
+            except Exception as e:  # a hook error must not kill the drain thread
+                log.warning("progress hook failed: %s", e)
+
+    drainer = threading.Thread(target=drain, name="repro-progress", daemon=True)
+    drainer.start()
+    run_keys = {j.key() for j in to_run}
+    waiting = {j.key(): {i.key() for i in j.inputs if i.key() in run_keys} for j in to_run}
+    dependents: dict[str, list[Job]] = {}
+    for j in to_run:
+        for i in waiting[j.key()]:
+            dependents.setdefault(i, []).append(j)
+    ready = [j for j in to_run if not waiting[j.key()]]
+    running: dict[Any, tuple[Job, float]] = {}
+    failure: BaseException | None = None
+    pool = ProcessPoolExecutor(max_workers=min(jobs, len(to_run)), mp_context=ctx,
+                               initializer=_worker_init, initargs=(q, stop_workers, threads))
+    try:
+        while ready or running:
+            while ready and failure is None:
+                job = ready.pop(0)
+                k = job.key()
+                fut = pool.submit(_worker_task, job, k, _inputs(job, results), str(store.root),
+                                  dec[k].forced, threads)
+                running[fut] = (job, time.perf_counter())
+            if not running:
+                break
+            done, _ = wait(list(running), return_when=FIRST_COMPLETED)
+            for fut in done:
+                job, t0 = running.pop(fut)
+                k = job.key()
+                try:
+                    status, obj, seconds = fut.result()
+                except KeyboardInterrupt:
+                    finish(JobResult(job, k, INTERRUPTED, time.perf_counter() - t0))
+                    raise
+                except BaseException as e:
+                    finish(JobResult(job, k, FAILED, time.perf_counter() - t0,
+                                     error=f"{type(e).__name__}: {e}"))
+                    _annotate(e, job, k)
+                    failure = failure or e
+                    continue
+                finish(JobResult(job, k, status, seconds, obj))
+                for d in dependents.get(k, []):
+                    waiting[d.key()].discard(k)
+                    if not waiting[d.key()]:
+                        ready.append(d)
+            if failure is not None:
+                ready.clear()
+        if failure is not None:
+            raise failure
+    except KeyboardInterrupt:
+        stop_workers.set()
+        _stop_workers(pool, running, pids, results, finish, flag)
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+        stop.set()
+        drainer.join(timeout=2.0)
+        q.close()
+
+
+def _stop_workers(pool, running, pids, results, finish, flag) -> None:
+    """Interrupt running jobs (SIGINT, then SIGKILL after a grace period) and record them."""
+    for fut in running:
+        fut.cancel()  # those still waiting in the executor's queue
+    pending = {f for f in running if not f.cancelled()}
+    if pending and not flag.get("sigterm"):
+        # Ctrl-C in a terminal reaches the workers too: give them a moment to stop cleanly.
+        _, pending = wait(pending, timeout=2.0)
+    if pending:
+        _signal_all(pids, signal.SIGINT)
+        _, pending = wait(pending, timeout=10.0)
+    if pending:
+        _signal_all(pids, signal.SIGKILL)
+    for fut, (job, t0) in list(running.items()):
+        k = job.key()
+        if k in results:
+            continue
+        status, obj = INTERRUPTED, None
+        if fut.done() and not fut.cancelled():
+            try:
+                status, obj, _ = fut.result()
+            except BaseException:
+                status, obj = INTERRUPTED, None
+        elif fut.cancelled():
+            status = CANCELLED
+        finish(JobResult(job, k, status, time.perf_counter() - t0, obj))
+    pool.shutdown(wait=False, cancel_futures=True)

@@ -1,0 +1,208 @@
+"""``repro run / show / plan / rescore / verify``: a table from spec to recorded run to report.
+
+A run: resolve the spec, the scale profile and the data set → build the plan
+(:func:`repro.engine.tables.build_plan`) → train or load each band's evaluator → the real-data
+gate (:mod:`repro.eval.gate`; a failing gate stops the run before any method is scored, with
+the reason) → execute the job graph (cached jobs are hits) → record every raw replicate value,
+the summary and the environment in a run folder → render the table.
+
+``show`` renders the newest finished run of a table (for a scale and data set) without
+computing anything; ``rescore`` recomputes only the ``measure`` jobs from stored samples.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from repro.errors import ConfigError, ReproError
+
+
+def _spec(name: str):
+    from repro.specs.load import find_spec
+
+    return find_spec(name)
+
+
+def _scale(name: str, dataset: str | None):
+    from repro.specs.scales import resolve_scale
+
+    return resolve_scale(name, dataset)
+
+
+def _footer(plan, evaluators: dict[str, Any], run_id: str | None) -> list[str]:
+    from repro.stats.intervals import INTERVAL_DESCRIPTIONS
+
+    spec, scale = plan.spec, plan.scale
+    lines = []
+    if plan.dataset != spec.paper_dataset:
+        lines.append(f"Data: STAND-IN {plan.dataset} (the paper used {spec.paper_dataset}); "
+                     "numbers are not comparable in absolute value, only in ordering and gaps.")
+    lines.append(f"Scale: {scale.name} ({scale.description}); replicates: {len(plan.seeds)} "
+                 f"sampling passes of one trained model per row (seeds {list(plan.seeds)}); "
+                 "training-seed variance is not inside the intervals.")
+    lines.append(f"Paper ±: {INTERVAL_DESCRIPTIONS.get(spec.interval, spec.interval)}; ours: mean "
+                 f"±(paper convention) [95% percentile bootstrap over replicates, "
+                 f"B={scale.bootstrap_resamples}].")
+    for desc in evaluators.values():
+        lines.append(f"Evaluator: {desc}")
+    for b in plan.bands:
+        if not b.implemented:
+            lines.append(f"Columns {', '.join(b.columns)}: {b.reason}.")
+    lines.append(f"Spec {spec.id} v{spec.version} [{spec.spec_hash[:12]}]"
+                 + (f"; run {run_id}" if run_id else "; not run yet"))
+    return lines
+
+
+def _evaluators(plan, *, train: bool, progress: bool) -> dict[str, str]:
+    """Describe (and, with ``train``, train or load) every band's evaluator."""
+    from repro.eval.provider import get_evaluator
+
+    out: dict[str, str] = {}
+    for b in plan.bands:
+        if b.evaluator is None or b.evaluator_key is None or b.evaluator_key in out:
+            continue
+        e = b.evaluator
+        if not train:
+            out[b.evaluator_key] = f"{e['kind']} on {e['dataset']} (store key {b.evaluator_key[:12]})"
+            continue
+        if progress:
+            print(f"repro: evaluator {e['kind']} on {e['dataset']} ({e['scale']})…", file=sys.stderr)
+        ev = get_evaluator(e["dataset"], e["kind"], e["scale"], e["seed"])
+        out[b.evaluator_key] = ev.describe()
+    return out
+
+
+def _gate(plan) -> None:
+    """The real-data gate for every band that has a real row (evaluation issue, item 4)."""
+    from repro.eval import check_real_gate, evaluator_stats, get_evaluator, real_rows
+
+    if not any(rp.method == "real" and rp.measures for rp in plan.rows):
+        return
+    seen = set()
+    for b in plan.bands:
+        if b.evaluator is None or b.evaluator_key in seen:
+            continue
+        seen.add(b.evaluator_key)
+        e = b.evaluator
+        ev = get_evaluator(e["dataset"], e["kind"], e["scale"], e["seed"])
+        rows = real_rows(e["dataset"], e["scale"], seed=0, kind=e["kind"], evaluator=ev)
+        check_real_gate(rows, evaluator_stats(ev))
+
+
+def run_table(name: str, *, scale: str = "quick", dataset: str | None = None, jobs: int = 1,
+              force: Any = None, progress: bool = True) -> tuple[Any, dict, str]:
+    """Run one table; returns (plan, summary, run_id)."""
+    from repro.engine.executor import execute
+    from repro.engine.tables import build_plan, collect_values, summarise
+    from repro.store.runs import RunRecorder
+
+    spec = _spec(name)
+    sc = _scale(scale, dataset)
+    plan = build_plan(spec, sc, dataset)
+    rec = RunRecorder(table=spec.id, spec_version=spec.version, spec_hash=spec.spec_hash,
+                      config=plan.config, scale=sc.name, dataset=plan.dataset)
+    with rec:
+        evaluators = _evaluators(plan, train=bool(plan.jobs()), progress=progress)
+        if plan.jobs():
+            _gate(plan)
+        hook = None
+        if progress and plan.jobs():
+            from repro.engine.progress import RichProgressHook
+
+            hook = RichProgressHook()
+        if hook is not None:
+            with hook:
+                report = execute(plan.jobs(), jobs=jobs, force=force, hook=hook, recorder=rec)
+        else:
+            report = execute(plan.jobs(), jobs=jobs, force=force, recorder=rec)
+        values = collect_values(plan, report)
+        rec.add_values(values)
+        summary = summarise(plan, values)
+        summary["evaluators"] = evaluators
+        summary["footer"] = _footer(plan, evaluators, rec.run_id)
+        summary["counts"] = report.counts
+        rec.write_summary(summary)
+    return plan, summary, rec.run_id
+
+
+def latest_run(table: str, scale: str | None = None, dataset: str | None = None) -> Path | None:
+    """The newest FINISHED run folder of ``table`` (optionally for a scale / data set)."""
+    from repro.store.runs import FINISHED, read_run_json, run_dirs
+
+    for d in reversed(run_dirs()):
+        try:
+            rj = read_run_json(d / "run.json")
+        except ReproError:
+            continue
+        if rj.get("table") != table or rj.get("status") != FINISHED:
+            continue
+        if scale is not None and rj.get("scale") != scale:
+            continue
+        if dataset is not None and rj.get("dataset") != dataset:
+            continue
+        return d
+    return None
+
+
+def table_view(name: str, *, scale: str = "quick", dataset: str | None = None, run: str | None = None):
+    """The view of a table: from a run (the newest finished one by default) or, when there is
+    none, the paper's values beside "not run" cells."""
+    from repro.engine.tables import build_plan, make_view
+    from repro.store.runs import resolve_run
+
+    spec = _spec(name)
+    sc = _scale(scale, dataset)
+    path = resolve_run(run) if run else latest_run(spec.id, sc.name, dataset or sc.dataset_for(spec))
+    if path is not None:
+        summary = json.loads((path / "summary.json").read_text())
+        rj = json.loads((path / "run.json").read_text())
+        return make_view(spec, summary.get("rows", {}), summary, summary.get("footer", []),
+                         rj.get("dataset"))
+    plan = build_plan(spec, sc, dataset)
+    rows = {rp.row_id: {"status": _before_run(rp.status), "reason": rp.reason} for rp in plan.rows}
+    return make_view(spec, rows, None, _footer(plan, _evaluators(plan, train=False, progress=False),
+                                               None), plan.dataset)
+
+
+def _before_run(status: str) -> str:
+    """A row that could run but has not: "not run"; other statuses say why it cannot."""
+    from repro.report.view import NOT_RUN, OK
+
+    return NOT_RUN if status == OK else status
+
+
+def plan_table(name: str, *, scale: str = "quick", dataset: str | None = None, why: bool = False,
+               force: Any = None) -> list[dict]:
+    """What a run would do: each job with its key, cached or not, and (``why``) what changed."""
+    from repro.engine.plan import plan as plan_jobs
+    from repro.engine.tables import build_plan
+
+    spec = _spec(name)
+    plan = build_plan(spec, _scale(scale, dataset), dataset)
+    entries = plan_jobs(plan.jobs(), force=force, why=why)
+    out = [{"job": e.job.name if hasattr(e.job, "name") else e.job.label, "kind": e.job.kind,
+            "key": e.key[:12], "cached": e.cached, "why": getattr(e, "why", None)} for e in entries]
+    for rp in plan.rows:
+        if rp.status != "ok":
+            out.append({"job": f"{rp.row_id}", "kind": "row", "key": "", "cached": False,
+                        "why": f"{rp.status}: {rp.reason}"})
+    return out
+
+
+def verify_table(name: str, baseline_dir: str | Path, *, scale: str = "quick",
+                 dataset: str | None = None) -> list[str]:
+    """Compare the newest run of ``name`` with a committed baseline; returns the problems."""
+    from repro.engine.baselines import compare, load_baseline
+
+    spec = _spec(name)
+    sc = _scale(scale, dataset)
+    path = latest_run(spec.id, sc.name, dataset or sc.dataset_for(spec))
+    if path is None:
+        raise ConfigError(f"no finished run of {spec.id} at scale {sc.name}; run "
+                          f"`repro run {spec.id} --scale {sc.name}` first")
+    base = load_baseline(Path(baseline_dir), spec.id)
+    summary = json.loads((path / "summary.json").read_text())
+    return compare(base, summary)

@@ -1,0 +1,149 @@
+"""The hash of the source code that implements a job (issue 4, item 3).
+
+``source_hash("repro.models.marionet")`` is sha256 (via :func:`repro.keys.content_key`) over
+the sorted list of ``[module name, sha256 of the module file's bytes]`` for the module and every
+module it imports, transitively, that is
+
+- in the ``repro`` package, or
+- in the same top-level package as the root module (so a job implemented outside ``repro``,
+  e.g. a plug-in or a test module, still covers its own helpers),
+
+together with the parent packages of each (their ``__init__.py`` runs on import).  Imports are
+read with :mod:`ast` without executing anything: ``import a.b``, ``from a import b`` (``a.b``
+counts when it is a submodule), relative imports, and imports inside functions (the project
+imports heavy libraries lazily) all count; so do imports under ``if TYPE_CHECKING`` (a
+harmless over-approximation).  Third-party libraries are not hashed: their versions are in the
+run record.
+
+Results are cached per process (:func:`clear_source_cache` empties the cache): a process runs
+the code it imported, so its keys describe that code.
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib.machinery
+import importlib.util
+import sys
+from functools import lru_cache
+from pathlib import Path
+
+from repro.errors import ConfigError
+from repro.keys import content_key, sha256_file
+
+ROOT_PACKAGE = "repro"
+
+
+def _find_spec(name: str):
+    """The module spec of ``name`` found without importing anything (None if not found)."""
+    mod = sys.modules.get(name)
+    spec = getattr(mod, "__spec__", None) if mod is not None else None
+    if spec is not None and name != "__main__":
+        return spec
+    parent, _, _ = name.rpartition(".")
+    if not parent:
+        spec = importlib.machinery.PathFinder.find_spec(name)
+        if spec is None:
+            try:
+                spec = importlib.util.find_spec(name)  # e.g. an editable-install finder
+            except (ImportError, ValueError):
+                spec = None
+        return spec
+    pspec = _find_spec(parent)
+    if pspec is None or pspec.submodule_search_locations is None:
+        return None
+    return importlib.machinery.PathFinder.find_spec(name, list(pspec.submodule_search_locations))
+
+
+def _module_file(spec) -> Path | None:
+    origin = getattr(spec, "origin", None)
+    if not origin or origin in ("built-in", "frozen", "namespace") or not spec.has_location:
+        return None
+    p = Path(origin)
+    return p if p.is_file() else None
+
+
+def _imported_names(tree: ast.AST, name: str, is_package: bool) -> set[str]:
+    """Every module name an import statement in ``tree`` may refer to."""
+    package = name if is_package else name.rpartition(".")[0]
+    out: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                out.add(alias.name)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                rel = "." * node.level + (node.module or "")
+                try:
+                    base = importlib.util.resolve_name(rel, package)
+                except (ImportError, ValueError):
+                    continue
+            else:
+                base = node.module or ""
+            if not base:
+                continue
+            out.add(base)
+            for alias in node.names:
+                if alias.name != "*":
+                    out.add(f"{base}.{alias.name}")
+    return out
+
+
+def _with_parents(name: str) -> list[str]:
+    parts = name.split(".")
+    return [".".join(parts[: i + 1]) for i in range(len(parts))]
+
+
+@lru_cache(maxsize=None)
+def source_manifest(module_name: str) -> tuple[tuple[str, str], ...]:
+    """Sorted ``(module name, sha256 of its file)`` pairs covered by :func:`source_hash`.
+
+    Namespace packages (no file) appear with the digest ``"namespace"``.
+    Raises :class:`~repro.errors.ConfigError` when ``module_name`` cannot be found.
+    """
+    root_spec = _find_spec(module_name)
+    if root_spec is None:
+        raise ConfigError(f"cannot find module {module_name!r} (a job's implementation)")
+    top = module_name.split(".")[0]
+    scope = {ROOT_PACKAGE, top}
+
+    def in_scope(n: str) -> bool:
+        return n.split(".")[0] in scope
+
+    seen: dict[str, str] = {}
+    todo = _with_parents(module_name)
+    while todo:
+        name = todo.pop()
+        if name in seen:
+            continue
+        spec = root_spec if name == module_name else _find_spec(name)
+        if spec is None:
+            continue  # `from pkg import attr` where attr is not a submodule
+        path = _module_file(spec)
+        if path is None:
+            seen[name] = "namespace"
+            continue
+        seen[name] = sha256_file(path)
+        if path.suffix != ".py":
+            continue
+        try:
+            tree = ast.parse(path.read_bytes(), filename=str(path))
+        except SyntaxError:
+            continue  # the bytes are hashed; importing it will fail loudly anyway
+        is_pkg = spec.submodule_search_locations is not None
+        for imp in _imported_names(tree, name, is_pkg):
+            if in_scope(imp):
+                todo.extend(n for n in _with_parents(imp) if n not in seen)
+    return tuple(sorted(seen.items()))
+
+
+@lru_cache(maxsize=None)
+def source_hash(module_name: str) -> str:
+    """sha256 over :func:`source_manifest` of ``module_name`` (see the module docstring)."""
+    return content_key([list(p) for p in source_manifest(module_name)])
+
+
+def clear_source_cache() -> None:
+    """Forget cached hashes (tests; long-lived processes that reload code)."""
+    source_manifest.cache_clear()
+    source_hash.cache_clear()

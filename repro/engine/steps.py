@@ -1,0 +1,106 @@
+"""Job implementations of a table's graph (called by the executor as ``fn(ctx)``).
+
+Each step reads only its job's config, seed and input objects, and writes its payload into
+``ctx.out``; everything it depends on is in its key (see :mod:`repro.engine.tables`):
+
+- ``train_method``: train one row's method on the protocol's training items (checkpoints in the
+  key's scratch folder, so a killed training resumes) and save it (config beside weights);
+- ``generate``: one replicate's samples for the protocol's test items (kept, so a rescore
+  re-measures without regenerating);
+- ``measure``: one replicate's metric values for a generated set (evaluator features kept);
+- ``measure_real``: one replicate of the "Real" row.
+"""
+
+from __future__ import annotations
+
+import json
+from functools import lru_cache
+
+GENERATED = "generated.npz"
+VALUES = "values.json"
+
+
+@lru_cache(maxsize=4)
+def _clipset(dataset: str):
+    from repro.data.registry import load_clipset
+
+    return load_clipset(dataset)
+
+
+def _protocol(cfg):
+    from repro.eval.protocols import get_protocol
+
+    return get_protocol(cfg["protocol"], cfg["protocol_params"])
+
+
+def _evaluator(cfg):
+    from repro.eval.provider import get_evaluator
+
+    ev = cfg["evaluator"]
+    return get_evaluator(ev["dataset"], ev["kind"], ev["scale"], ev["seed"])
+
+
+def _write_values(ctx, values: dict) -> None:
+    clean = {k: (None if v is None else float(v)) for k, v in values.items()}
+    (ctx.out / VALUES).write_text(json.dumps({"schema": 1, "values": clean}, sort_keys=True))
+
+
+def train_method(ctx) -> None:
+    from repro.models.base import generator_class
+
+    cfg = ctx.config
+    ctx.seed_globals()
+    clipset = _clipset(cfg["dataset"])
+    items = _protocol(cfg).train_items(clipset)
+    cls = generator_class(cfg["method"])
+    gen = cls(cfg["method_config"], clipset.skeleton, clipset.n_classes, clipset.fps)
+    epochs = cfg["method_config"].get("epochs")
+
+    def on_epoch(epoch, rec):
+        loss = rec.get("loss")
+        ctx.progress(epoch + 1, epochs, None if loss is None else f"loss {loss:.4g}")
+
+    result = gen.fit(items, seed=ctx.seed, ckpt_dir=ctx.scratch, on_epoch=on_epoch)
+    gen.save(ctx.out)
+    history = getattr(result, "history", None) or []
+    (ctx.out / "training.json").write_text(json.dumps(
+        {"schema": 1, "history": history, "resumed_from": getattr(result, "resumed_from", None),
+         "seconds": getattr(result, "seconds", None)}, sort_keys=True))
+
+
+def generate(ctx) -> None:
+    from repro.models.base import Generator
+
+    cfg = ctx.config
+    ctx.seed_globals()
+    proto = _protocol(cfg)
+    items = proto.test_items(_clipset(cfg["dataset"]))
+    gen = Generator.load(ctx.inputs[0].path)
+    out = proto.generate(gen, items, seed=ctx.seed, replicate=cfg["replicate"])
+    proto.save_generated(out, ctx.out / GENERATED)
+
+
+def measure(ctx) -> None:
+    cfg = ctx.config
+    ctx.seed_globals()
+    proto = _protocol(cfg)
+    items = proto.test_items(_clipset(cfg["dataset"]))
+    generated = proto.load_generated(ctx.inputs[0].path / GENERATED)
+    values = proto.measure(generated, items, _evaluator(cfg), seed=ctx.seed)
+    _write_values(ctx, values)
+
+
+def measure_real(ctx) -> None:
+    cfg = ctx.config
+    ctx.seed_globals()
+    proto = _protocol(cfg)
+    clipset = _clipset(cfg["dataset"])
+    items = proto.test_items(clipset)
+    values = proto.real_replicate(clipset, items, _evaluator(cfg), seed=ctx.seed,
+                                  replicate=cfg["replicate"])
+    _write_values(ctx, values)
+
+
+def read_values(obj) -> dict[str, float | None]:
+    """The metric values a measure/measure_real object holds."""
+    return json.loads(obj.read_text(VALUES))["values"]
