@@ -1,0 +1,184 @@
+"""``repro data prepare | info | bundle``: the data sets (see docs/data.md)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("data", help="prepare, describe and bundle data sets",
+                              description="Prepare, describe and bundle data sets.")
+    sub = p.add_subparsers(dest="data_command", metavar="SUBCOMMAND")
+    p.set_defaults(func=lambda args: (p.print_help(), 0)[1])
+
+    pp = sub.add_parser("prepare", help="parse a data set's source into the local cache")
+    pp.add_argument("name", help="data set name (bandai2)")
+    pp.add_argument("--source", help="the upstream archive or an extracted folder "
+                    "(default: ../shared/data/bandai-namco-2/ or $REPRO_DATA)")
+    pp.add_argument("--workers", type=int, default=2, help="parser processes (0: in-process)")
+    pp.add_argument("--force", action="store_true", help="rebuild even if the cache is valid")
+    pp.add_argument("--json", action="store_true", help="print the result as JSON")
+    pp.set_defaults(func=_prepare)
+
+    pi = sub.add_parser("info", help="counts, classes, styles, lengths of a data set")
+    pi.add_argument("name", help="data set name (see `repro data info --list`)", nargs="?")
+    pi.add_argument("--json", action="store_true", help="machine-readable output")
+    pi.add_argument("--list", action="store_true", help="list registered data sets and status")
+    pi.set_defaults(func=_info)
+
+    pb = sub.add_parser("bundle", help="rebuild the bundled bandai2-mini subset")
+    pb.add_argument("--source", help="bandai2 archive or folder (default: as for prepare)")
+    pb.add_argument("--out", help="output folder (default: the package's repro/data/bundled/)")
+    pb.add_argument("--workers", type=int, default=2, help="parser processes for prepare")
+    pb.set_defaults(func=_bundle)
+
+
+def _default_source(given: str | None):
+    from pathlib import Path
+
+    from repro.errors import MissingDataError
+    from repro.paths import BANDAI_ARCHIVE_NAME, find_bandai_archive, shared_data_dir
+
+    if given:
+        return Path(given)
+    found = find_bandai_archive()
+    if found is None:
+        raise MissingDataError(f"no --source given and {BANDAI_ARCHIVE_NAME} is not in "
+                               f"{shared_data_dir()} (set REPRO_DATA or pass --source)")
+    return found
+
+
+def _progress():
+    """A rich progress callback on stderr when it is a terminal, else ``None``."""
+    if not sys.stderr.isatty():
+        return None, None
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
+
+    prog = Progress("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
+                    TimeElapsedColumn(), console=Console(stderr=True), transient=True)
+    task = prog.add_task("parsing clips", total=None)
+
+    def cb(done: int, total: int | None) -> None:
+        prog.update(task, completed=done, total=total)
+
+    return prog, cb
+
+
+def _prepare_bandai(name: str, source, workers: int, force: bool):
+    from repro.data.bandai import BANDAI2_CARD, prepare_bandai2
+    from repro.errors import ConfigError
+
+    if name != "bandai2":
+        raise ConfigError(f"`repro data prepare` knows bandai2, not {name!r}")
+    prog, cb = _progress()
+    if prog is not None:
+        with prog:
+            return prepare_bandai2(source, card=BANDAI2_CARD, workers=workers, force=force,
+                                   progress=cb)
+    return prepare_bandai2(source, card=BANDAI2_CARD, workers=workers, force=force)
+
+
+def _prepare(args: argparse.Namespace) -> int:
+    from repro.data.registry import get_entry
+    from repro.errors import ConfigError
+
+    entry = get_entry(args.name)
+    if args.name == "bandai2-mini":
+        raise ConfigError("bandai2-mini is bundled with the package; rebuild it with "
+                          "`repro data bundle`")
+    if args.name != "bandai2":
+        st = entry.status()
+        raise ConfigError(f"{args.name} needs no prepare step here"
+                          + (f"; {st.missing}" if st.missing else ""))
+    res = _prepare_bandai(args.name, _default_source(args.source), args.workers, args.force)
+    out = {"name": args.name, "path": str(res.path), "fingerprint": res.fingerprint,
+           "reused": res.reused, "clips": res.clips, "frames": res.frames,
+           "seconds": round(res.seconds, 2)}
+    if args.json:
+        print(json.dumps(out, indent=1))
+    else:
+        how = "already prepared" if res.reused else "prepared"
+        print(f"{args.name}: {how}: {res.clips} clips, {res.frames} frames in {res.seconds:.1f} s "
+              f"-> {res.path}")
+    return 0
+
+
+def _info(args: argparse.Namespace) -> int:
+    from repro.data.registry import DATASETS, clipset_summary, get_entry
+
+    if args.list or not args.name:
+        rows = []
+        for name, e in DATASETS.items():
+            st = e.status()
+            rows.append({"name": name, "paper_dataset": e.is_paper_dataset,
+                         "prepared": st.prepared, "location": st.location,
+                         "fingerprint": st.fingerprint, "missing": st.missing,
+                         "description": e.description})
+        if args.json:
+            print(json.dumps(rows, indent=1))
+        else:
+            for r in rows:
+                state = "ready" if r["prepared"] else "missing"
+                print(f"{r['name']:<14} {state:<8} {r['description']}")
+                if r["missing"]:
+                    print(f"{'':<14} {'':<8} {r['missing']}")
+        return 0
+    summary = clipset_summary(get_entry(args.name).load())
+    if args.json:
+        print(json.dumps(summary, indent=1))
+        return 0
+    _print_summary(summary)
+    return 0
+
+
+def _print_summary(s: dict) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    con = Console()
+    L = s["length_frames"]
+    con.print(f"[bold]{s['name']}[/bold]: {s['clips']} clips, {s['frames']} frames, "
+              f"{s['classes']} classes, {s['styles']} styles, {s['fps']:g} fps, "
+              f"{s['joints']} joints")
+    con.print(f"clip length (frames): min {L['min']}, mean {L['mean']:.1f}, max {L['max']}; "
+              f"split: {s['split']['train']} train / {s['split']['test']} test")
+    con.print(f"fingerprint: {s['fingerprint']}")
+    t = Table("class", "clips")
+    for k, v in s["per_class"].items():
+        t.add_row(k, str(v))
+    con.print(t)
+    if s["per_style"]:
+        t = Table("style", "clips")
+        for k, v in s["per_style"].items():
+            t.add_row(k, str(v))
+        con.print(t)
+
+
+def _bundle(args: argparse.Namespace) -> int:
+    import subprocess
+
+    from repro.data.bandai import load_bandai2
+    from repro.data.bundle import MINI_MAX_BYTES, build_mini
+    from repro.errors import DataError
+
+    res = _prepare_bandai("bandai2", _default_source(args.source), args.workers, False)
+    clips = load_bandai2("bandai2")
+    if clips.fingerprint != res.fingerprint:  # pragma: no cover (prepare sets the pointer)
+        raise DataError("prepared cache changed while bundling; run the command again")
+    out = build_mini(clips, args.out)
+    try:
+        du = subprocess.run(["du", "-sb", *[f"{out['out']}/{f}" for f in out["files"]]],
+                            capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        du = ""
+    print(f"bandai2-mini: {out['clips']} clips, {out['frames']} frames, {out['bytes']} bytes "
+          f"-> {out['out']}")
+    if du:
+        print(du)
+    if out["bytes"] > MINI_MAX_BYTES:
+        raise DataError(f"bundle is {out['bytes']} bytes, over the {MINI_MAX_BYTES} byte limit",
+                        out["out"])
+    return 0

@@ -1,0 +1,610 @@
+"""The real-mocap stand-in ``bandai2`` (Bandai-Namco-Research-Motiondataset-2, CC BY-NC 4.0).
+
+``prepare_bandai2(source)`` reads the upstream archive straight through :mod:`tarfile` (one
+decompression pass, nothing unpacked to disk) or an extracted folder, parses every clip with
+:mod:`repro.data.bvh` (a pool of worker processes), converts it to the harness conventions and
+publishes a compact cache under ``datasets_root()/bandai2/<fingerprint>/``; ``load_bandai2()``
+opens the last prepared cache memory-mapped.
+
+Conversion (the one place where units change; see docs/data.md):
+
+- centimetres -> metres (:data:`CM_TO_M`); Y is already up, axes are kept;
+- ``joint_Root`` is checked to be an all-zero dummy (offset and channels) and dropped, so
+  ``Hips`` is the root and its position channels are the root translation;
+- local rotations are stored exactly as the file gives them (relative to the BVH rest pose, in
+  which every bone lies along ±X), as xyzw quaternions (roma), composed intrinsically in channel
+  order (``Zrotation Xrotation Yrotation`` -> ``Rz·Rx·Ry``); no re-targeting;
+- the position channels of the other joints must equal their OFFSETs (to :data:`POS_TOL_CM`),
+  because a ClipSet has one skeleton; joint positions are forward kinematics of the file's own
+  channels, in metres;
+- every clip must share one skeleton (names, parents, offsets to :data:`OFFSET_TOL_CM`).
+
+A :class:`DatasetCard` records what the data must look like (2,902 clips, 384,931 frames,
+10 classes, 7 styles, 30 fps, 21 joints); ``prepare`` fails with a DataError when it disagrees.
+The default split (stratified by action and style, 80/20, seeded) is stored with the cache.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tarfile
+import tempfile
+import time
+from collections import deque
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable, Iterator
+
+import numpy as np
+
+from repro.errors import DataError, MissingDataError
+
+#: Bump when the conversion changes: it enters the cache fingerprint.
+PREPARE_VERSION = 1
+#: Layout version of the cache folder (meta.json ``schema``).
+SCHEMA = 1
+#: The reader boundary's unit change: the BVH files are in centimetres.
+CM_TO_M = 0.01
+DUMMY_ROOT = "joint_Root"
+#: Largest |value| (cm or degrees) tolerated in the dummy root's offset and channels.
+DUMMY_TOL = 1e-4
+#: Largest distance (cm) between a non-root joint's position channels and its OFFSET.
+POS_TOL_CM = 1e-3
+#: Largest difference (cm) between a clip's OFFSETs and the first clip's.
+OFFSET_TOL_CM = 1e-3
+#: Clips per conversion task (rotations and forward kinematics run batched over a task).
+BATCH = 16
+#: Folders with fewer BVH files than this are parsed in-process (a pool costs seconds to start).
+POOL_MIN_FILES = 64
+ARRAYS = ("rotations", "root", "joints", "starts", "lengths", "labels", "styles", "split")
+POINTER = "current.json"
+
+ProgressFn = Callable[[int, "int | None"], None]
+
+
+# ----------------------------------------------------------------------------- the card
+@dataclass(frozen=True)
+class DatasetCard:
+    """What a prepared data set must look like.  ``None`` counts are not checked (used for
+    subsets in tests); names and fps always are."""
+
+    name: str
+    clips: int | None
+    frames: int | None
+    fps: float
+    class_names: tuple[str, ...]
+    style_names: tuple[str, ...]
+    joints: int
+    license: str = "CC BY-NC 4.0"
+    credit: str = "Bandai Namco Research Inc."
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["class_names"] = list(self.class_names)
+        d["style_names"] = list(self.style_names)
+        return d
+
+    def disagreements(self, *, clips: int, frames: int, fps: float, classes: set[int],
+                      styles: set[int], joints: int) -> list[str]:
+        bad = []
+        if self.clips is not None and clips != self.clips:
+            bad.append(f"{clips} clips (card: {self.clips})")
+        if self.frames is not None and frames != self.frames:
+            bad.append(f"{frames} frames (card: {self.frames})")
+        if abs(fps - self.fps) > 1e-3:
+            bad.append(f"{fps:g} fps (card: {self.fps:g})")
+        if self.clips is not None and len(classes) != len(self.class_names):
+            bad.append(f"{len(classes)} classes (card: {len(self.class_names)})")
+        if self.clips is not None and len(styles) != len(self.style_names):
+            bad.append(f"{len(styles)} styles (card: {len(self.style_names)})")
+        if joints != self.joints:
+            bad.append(f"{joints} joints after dropping {DUMMY_ROOT} (card: {self.joints})")
+        return bad
+
+
+BANDAI2_CARD = DatasetCard(
+    name="bandai2", clips=2902, frames=384931, fps=30.0,
+    class_names=("walk", "walk-turn-left", "walk-turn-right", "run", "wave-both-hands",
+                 "wave-left-hand", "wave-right-hand", "raise-up-both-hands", "raise-up-left-hand",
+                 "raise-up-right-hand"),
+    style_names=("active", "elderly", "exhausted", "feminine", "masculine", "normal", "youthful"),
+    joints=21,
+)
+
+
+@dataclass
+class PrepareResult:
+    path: Path
+    fingerprint: str
+    reused: bool
+    seconds: float
+    clips: int = 0
+    frames: int = 0
+    timings: dict = field(default_factory=dict)
+
+
+# ------------------------------------------------------------------------ locations
+def dataset_dir(name: str = "bandai2") -> Path:
+    from repro.paths import datasets_root
+
+    return datasets_root() / name
+
+
+def prepare_command(name: str = "bandai2") -> str:
+    """The exact command that prepares ``name`` (for error messages)."""
+    from repro.paths import BANDAI_ARCHIVE_NAME, find_bandai_archive, shared_data_dir
+
+    src = find_bandai_archive() or (shared_data_dir() / BANDAI_ARCHIVE_NAME)
+    return f"repro data prepare {name} --source {src}"
+
+
+def source_fingerprint(source: Path) -> str:
+    """sha256 of the archive bytes, or for a folder the content key of the sorted
+    (relative name, sha256) list of its files."""
+    from repro.keys import content_key, sha256_file
+
+    if source.is_dir():
+        files = sorted(p for p in source.rglob("*") if p.is_file())
+        return content_key([[p.relative_to(source).as_posix(), sha256_file(p)] for p in files])
+    return sha256_file(source)
+
+
+def dataset_fingerprint(source_fp: str, card: DatasetCard, split: dict) -> str:
+    from repro.keys import content_key
+
+    return content_key({"dataset": card.name, "source": source_fp,
+                        "prepare_version": PREPARE_VERSION, "split": split})
+
+
+# ------------------------------------------------------------------------ the source
+def _label_lines(data: bytes) -> list[str]:
+    out = []
+    for ln in data.decode("utf-8", "replace").splitlines():
+        ln = ln.strip()
+        if ln:
+            out.append(ln.split("_", 1)[1] if ln.startswith("dataset-2_") else ln)
+    return out
+
+
+def _iter_source(source: Path) -> Iterator[tuple[str, str, bytes]]:
+    """Yield (kind, label-for-errors, bytes) for each .bvh, .json and cfg label file."""
+    def kind_of(name: str) -> str | None:
+        base = name.rsplit("/", 1)[-1]
+        if base.endswith(".bvh"):
+            return "bvh"
+        if base.endswith(".json"):
+            return "json"
+        if base in ("content_label.txt", "style_label.txt"):
+            return base
+        return None
+
+    if source.is_dir():
+        for p in sorted(source.rglob("*")):
+            k = kind_of(p.name)
+            if k and p.is_file():
+                yield k, str(p), p.read_bytes()
+        return
+    try:
+        tf = tarfile.open(source, mode="r|*")
+    except (tarfile.TarError, OSError) as e:
+        raise DataError(f"not a readable tar archive or folder ({e})", source) from None
+    try:
+        with tf:
+            for m in tf:
+                k = kind_of(m.name)
+                if k is None or not m.isfile():
+                    continue
+                fh = tf.extractfile(m)
+                if fh is None:
+                    continue
+                yield k, f"{source}:{m.name}", fh.read()
+    except (tarfile.TarError, EOFError, OSError) as e:
+        raise DataError(f"archive is damaged or truncated ({type(e).__name__}: {e})", source) from None
+
+
+def _clip_name(label: str) -> str:
+    base = label.rsplit("/", 1)[-1].rsplit(":", 1)[-1]
+    return base.rsplit(".", 1)[0]
+
+
+# ------------------------------------------------------------------------ one clip
+def _check_clip(label: str, b) -> tuple[np.ndarray, np.ndarray]:
+    """Check one parsed clip against the conversion rules; return its per-frame local
+    translations (T, J-1, 3) cm without the dummy root, and its offsets (J-1, 3) cm."""
+    if b.names[0] != DUMMY_ROOT:
+        raise DataError(f"root joint is {b.names[0]!r}, expected the dummy {DUMMY_ROOT!r}", label)
+    kids = [j for j, p in enumerate(b.parents) if p == 0]
+    if kids != [1]:
+        raise DataError(f"{DUMMY_ROOT} must have exactly one child joint (the hips), has "
+                        f"{len(kids)}", label)
+    ch0 = len(b.channels[0])
+    dev = max(float(np.abs(b.offsets[0]).max()),
+              float(np.abs(b.motion[:, :ch0]).max()) if ch0 else 0.0)
+    if dev > DUMMY_TOL:
+        raise DataError(f"{DUMMY_ROOT} is not an all-zero dummy (offset/channels reach {dev:g}); "
+                        f"dropping it would move the body", label)
+    if not {"Xposition", "Yposition", "Zposition"} <= set(b.channels[1]):
+        raise DataError(f"root joint {b.names[1]!r} lacks X/Y/Zposition channels (root "
+                        f"translation)", label)
+    trans = b.local_translations()[:, 1:]  # position channels honoured
+    offsets = b.offsets[1:].copy()
+    offsets[0] = 0.0  # the root's OFFSET is replaced by its position channels
+    for j, chans in enumerate(b.channels[2:], start=1):
+        if any(c.endswith("position") for c in chans):
+            d = float(np.abs(trans[:, j] - offsets[j]).max())
+            if d > POS_TOL_CM:
+                raise DataError(f"position channels of {b.names[j + 1]!r} move it {d:.4g} cm from "
+                                f"its OFFSET; one skeleton per data set is required", label)
+    return trans, offsets
+
+
+def convert_clips(items: list[tuple[str, bytes]]) -> list[dict]:
+    """Parse and convert BVH files (module docstring), batching the rotation conversion and
+    forward kinematics over all clips that share a hierarchy.  Each result holds numpy arrays
+    ``rotations`` (T, J, 4) float32 xyzw, ``root`` (T, 3) float32 m, ``joints`` (T, J, 3)
+    float32 m, ``offsets`` (J, 3) float64 cm, plus ``name``, ``label``, ``names``,
+    ``parents``, ``frame_time``."""
+    import dataclasses
+
+    import roma
+    import torch
+
+    from repro.data.bvh import parse_bvh
+    from repro.motion.skeleton import Skeleton, forward_kinematics
+
+    parsed = []
+    for label, data in items:
+        b = parse_bvh(data, label)
+        trans, offsets = _check_clip(label, b)
+        parsed.append((label, b, trans, offsets))
+    groups: dict[tuple, list[int]] = {}
+    for i, (_, b, _, _) in enumerate(parsed):
+        groups.setdefault((b.names, b.parents, b.channels), []).append(i)
+    out: list[dict | None] = [None] * len(parsed)
+    for members in groups.values():
+        b0 = parsed[members[0]][1]
+        lengths = [parsed[i][1].n_frames for i in members]
+        motion = np.concatenate([parsed[i][1].motion for i in members])
+        q = dataclasses.replace(b0, motion=motion).local_rotations(as_quaternions=True)[:, 1:]
+        R = roma.unitquat_to_rotmat(q)
+        trans = torch.from_numpy(np.concatenate([parsed[i][2] for i in members]) * CM_TO_M)
+        skel = Skeleton(b0.names[1:], tuple(p - 1 for p in b0.parents[1:]),
+                        parsed[members[0]][3] * CM_TO_M)
+        joints = forward_kinematics(skel, R, trans[:, 0], offsets=trans).numpy().astype(np.float32)
+        qn = q.numpy().astype(np.float32)
+        root = trans[:, 0].numpy().astype(np.float32)
+        s = 0
+        for i, n in zip(members, lengths):
+            label, b, _, offsets = parsed[i]
+            out[i] = {
+                "name": _clip_name(label), "label": label,
+                "rotations": qn[s:s + n].copy(), "root": root[s:s + n].copy(),
+                "joints": joints[s:s + n].copy(), "offsets": offsets,
+                "names": skel.names, "parents": skel.parents, "frame_time": b.frame_time,
+            }
+            s += n
+    return out  # type: ignore[return-value]
+
+
+def convert_clip(label: str, data: bytes) -> dict:
+    """:func:`convert_clips` of one file."""
+    return convert_clips([(label, data)])[0]
+
+
+def _worker_init() -> None:
+    import torch
+
+    torch.set_num_threads(1)
+
+
+# ------------------------------------------------------------------------ prepare
+def _read_and_convert(source: Path, workers: int, progress: ProgressFn | None, total: int | None,
+                      timings: dict):
+    """Stream the source once; convert BVH files in ``workers`` processes (0: in-process)."""
+    clips: dict[str, dict] = {}
+    annotations: dict[str, tuple[str, bytes]] = {}
+    label_files: dict[str, tuple[str, bytes]] = {}
+    done = 0
+
+    def take(res: dict) -> None:
+        nonlocal done
+        if res["name"] in clips:
+            raise DataError(f"clip {res['name']!r} appears twice in the source", res["label"])
+        clips[res["name"]] = res
+        done += 1
+        if progress is not None:
+            progress(done, total)
+
+    t0 = time.perf_counter()
+    batch: list[tuple[str, bytes]] = []
+    if workers <= 0:
+        for kind, label, data in _iter_source(source):
+            if kind == "bvh":
+                batch.append((label, data))
+                if len(batch) == BATCH:
+                    for res in convert_clips(batch):
+                        take(res)
+                    batch = []
+            elif kind == "json":
+                annotations[_clip_name(label)] = (label, data)
+            else:
+                label_files[kind] = (label, data)
+        for res in convert_clips(batch) if batch else []:
+            take(res)
+    else:
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        ex = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
+                                 initializer=_worker_init)
+        pending: deque = deque()
+        try:
+            def drain(limit: int) -> None:
+                while len(pending) > limit or (pending and pending[0].done()):
+                    for res in pending.popleft().result():
+                        take(res)
+
+            for kind, label, data in _iter_source(source):
+                if kind == "bvh":
+                    batch.append((label, data))
+                    if len(batch) == BATCH:
+                        pending.append(ex.submit(convert_clips, batch))
+                        batch = []
+                    drain(4 * workers)
+                elif kind == "json":
+                    annotations[_clip_name(label)] = (label, data)
+                else:
+                    label_files[kind] = (label, data)
+            if batch:
+                pending.append(ex.submit(convert_clips, batch))
+            drain(0)
+        finally:
+            ex.shutdown(wait=True, cancel_futures=True)
+    timings["read_parse_s"] = time.perf_counter() - t0
+    return clips, annotations, label_files
+
+
+def _labels(clips: dict, annotations: dict, label_files: dict, card: DatasetCard):
+    for kind, names in (("content_label.txt", card.class_names), ("style_label.txt", card.style_names)):
+        if kind in label_files:
+            lbl, data = label_files[kind]
+            got = _label_lines(data)
+            if tuple(got) != tuple(names):
+                raise DataError(f"label list {got} disagrees with the {card.name} card {list(names)}", lbl)
+    order = sorted(clips)
+    labels = np.empty(len(order), np.int64)
+    styles = np.empty(len(order), np.int64)
+    for i, name in enumerate(order):
+        res = clips[name]
+        if name not in annotations:
+            raise DataError(f"no annotation {name}.json beside the BVH file", res["label"])
+        lbl, data = annotations[name]
+        try:
+            ann = json.loads(data)
+            c, s = int(ann["content"]), int(ann["style"])
+        except (ValueError, KeyError, TypeError) as e:
+            raise DataError(f"annotation must be JSON with integer 'content' and 'style' ({e})",
+                            lbl) from None
+        if not (0 <= c < len(card.class_names) and 0 <= s < len(card.style_names)):
+            raise DataError(f"content {c} / style {s} out of range", lbl)
+        parts = name.split("_")
+        if len(parts) != 4 or parts[1] != card.class_names[c] or parts[2] != card.style_names[s]:
+            raise DataError(f"file name disagrees with its annotation (content {c} = "
+                            f"{card.class_names[c]!r}, style {s} = {card.style_names[s]!r}); "
+                            f"expected dataset-2_{{content}}_{{style}}_{{NNN}}", res["label"])
+        labels[i], styles[i] = c, s
+    return order, labels, styles
+
+
+def _publish(tmp: Path, final: Path) -> None:
+    """Move the finished ``tmp`` folder to ``final`` atomically; a damaged ``final`` (no valid
+    meta.json) is moved aside first and then removed."""
+    if final.exists():
+        trash = final.with_name(f".trash-{final.name}-{os.getpid()}-{time.time_ns()}")
+        os.replace(final, trash)
+        os.replace(tmp, final)
+        shutil.rmtree(trash, ignore_errors=True)
+    else:
+        os.replace(tmp, final)
+
+
+def _write_json_atomic(path: Path, obj) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            json.dump(obj, fh, indent=1, sort_keys=True)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _valid_cache(path: Path) -> dict | None:
+    try:
+        meta = json.loads((path / "meta.json").read_text())
+    except (OSError, ValueError):
+        return None
+    if meta.get("schema") != SCHEMA or meta.get("prepare_version") != PREPARE_VERSION:
+        return None
+    if not all((path / f"{a}.npy").is_file() for a in ARRAYS):
+        return None
+    return meta
+
+
+def write_cache(root: Path, fp: str, arrays: dict[str, np.ndarray], meta: dict, *,
+                replace: bool = True) -> Path:
+    """Publish ``arrays`` (the :data:`ARRAYS`) and ``meta`` as ``root/fp/`` atomically: built in
+    a temporary folder beside it, then renamed, so readers never see a half-written cache and a
+    failure leaves any existing one untouched.  With ``replace=False`` a valid cache already
+    at ``root/fp`` (e.g. published meanwhile by another process) is kept and ours discarded."""
+    root.mkdir(parents=True, exist_ok=True)
+    final = root / fp
+    tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{fp[:12]}-", dir=root))
+    try:
+        os.chmod(tmp, 0o755)
+        for k in ARRAYS:
+            np.save(tmp / f"{k}.npy", arrays[k], allow_pickle=False)
+        meta = {**meta, "schema": SCHEMA, "prepare_version": PREPARE_VERSION, "fingerprint": fp}
+        (tmp / "meta.json").write_text(json.dumps(meta, indent=1, sort_keys=True))
+        if replace:
+            _publish(tmp, final)
+        else:
+            try:
+                os.replace(tmp, final)
+            except OSError:
+                if _valid_cache(final) is None:
+                    raise
+                shutil.rmtree(tmp, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return final
+
+
+def prepare_bandai2(source: str | Path, *, card: DatasetCard = BANDAI2_CARD, workers: int = 2,
+                    force: bool = False, progress: ProgressFn | None = None,
+                    split_seed: int | None = None, test_fraction: float | None = None
+                    ) -> PrepareResult:
+    """Parse ``source`` (the upstream .tar.xz or an extracted folder) into the cache.
+
+    The cache is rebuilt only when absent, damaged or ``force``; it is built in a temporary
+    folder beside the target and moved into place, so a failure leaves any existing cache intact.
+    """
+    from filelock import FileLock
+
+    from repro.data.splits import DEFAULT_SPLIT_SEED, DEFAULT_TEST_FRACTION, stratified_split
+    from repro.motion.skeleton import Skeleton
+
+    t_start = time.perf_counter()
+    source = Path(source).expanduser()
+    if not source.exists():
+        raise MissingDataError(f"source not found; get {card.name}'s archive (see "
+                               f"../shared/data/bandai-namco-2/SOURCE.md) and pass --source", source)
+    split_cfg = {"method": "stratified(action, style)",
+                 "seed": DEFAULT_SPLIT_SEED if split_seed is None else int(split_seed),
+                 "test_fraction": DEFAULT_TEST_FRACTION if test_fraction is None else float(test_fraction)}
+    timings: dict = {}
+    t0 = time.perf_counter()
+    src_fp = source_fingerprint(source)
+    timings["fingerprint_s"] = time.perf_counter() - t0
+    fp = dataset_fingerprint(src_fp, card, split_cfg)
+    root = dataset_dir(card.name)
+    root.mkdir(parents=True, exist_ok=True)
+    final = root / fp
+    with FileLock(str(root / ".lock")):
+        meta = None if force else _valid_cache(final)
+        if meta is not None:
+            _write_json_atomic(root / POINTER, {"fingerprint": fp, "source": str(source)})
+            return PrepareResult(final, fp, True, time.perf_counter() - t_start,
+                                 len(meta["clip_names"]), int(meta["stats"]["frames"]), timings)
+        if source.is_dir():
+            n_total = sum(1 for _ in source.rglob("*.bvh"))
+            w = workers if n_total >= POOL_MIN_FILES else 0
+        else:
+            n_total, w = card.clips, workers
+        clips, annotations, label_files = _read_and_convert(source, w, progress, n_total, timings)
+        if not clips:
+            raise DataError("no .bvh files found", source)
+        t0 = time.perf_counter()
+        order, labels, styles = _labels(clips, annotations, label_files, card)
+        first = clips[order[0]]
+        for name in order[1:]:
+            c = clips[name]
+            if c["names"] != first["names"] or c["parents"] != first["parents"]:
+                raise DataError(f"hierarchy differs from {order[0]}'s; one skeleton per data set "
+                                f"is required", c["label"])
+            d = float(np.abs(c["offsets"] - first["offsets"]).max())
+            if d > OFFSET_TOL_CM:
+                raise DataError(f"OFFSETs differ from {order[0]}'s by up to {d:.4g} cm; one "
+                                f"skeleton per data set is required", c["label"])
+            if abs(c["frame_time"] - first["frame_time"]) > 1e-9:
+                raise DataError(f"Frame Time {c['frame_time']:g} differs from {order[0]}'s "
+                                f"{first['frame_time']:g}", c["label"])
+        lengths = np.array([clips[n]["root"].shape[0] for n in order], np.int64)
+        starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
+        fps = round(1.0 / first["frame_time"], 3)
+        bad = card.disagreements(clips=len(order), frames=int(lengths.sum()), fps=fps,
+                                 classes=set(labels.tolist()), styles=set(styles.tolist()),
+                                 joints=len(first["names"]))
+        if bad:
+            raise DataError(f"the data disagrees with the {card.name} dataset card: "
+                            + "; ".join(bad), source)
+        split = stratified_split(labels, styles, test_fraction=split_cfg["test_fraction"],
+                                 seed=split_cfg["seed"])
+        skel = Skeleton(first["names"], first["parents"], first["offsets"] * CM_TO_M)
+        arrays = {
+            "rotations": np.concatenate([clips[n]["rotations"] for n in order]),
+            "root": np.concatenate([clips[n]["root"] for n in order]),
+            "joints": np.concatenate([clips[n]["joints"] for n in order]),
+            "starts": starts, "lengths": lengths, "labels": labels, "styles": styles,
+            "split": split,
+        }
+        clips.clear()
+        from repro import __version__
+
+        meta = {
+            "schema": SCHEMA, "name": card.name, "prepare_version": PREPARE_VERSION,
+            "fingerprint": fp, "source_fingerprint": src_fp,
+            "source_kind": "folder" if source.is_dir() else "archive",
+            "fps": fps, "skeleton": skel.to_dict(), "units": "metres, Y up",
+            "rotations": "local, xyzw, relative to the BVH rest pose (bones along ±X)",
+            "label_names": list(card.class_names), "style_names": list(card.style_names),
+            "clip_names": order, "split": split_cfg, "card": card.to_dict(),
+            "stats": {"clips": len(order), "frames": int(lengths.sum())},
+            "repro_version": __version__,
+        }
+        write_cache(root, fp, arrays, meta)
+        del arrays
+        _write_json_atomic(root / POINTER, {"fingerprint": fp, "source": str(source)})
+        timings["assemble_write_s"] = time.perf_counter() - t0
+    return PrepareResult(final, fp, False, time.perf_counter() - t_start, len(order),
+                         int(lengths.sum()), timings)
+
+
+# ------------------------------------------------------------------------ load
+def current_cache(name: str = "bandai2") -> tuple[Path, dict] | None:
+    """(folder, meta) of the last prepared cache of ``name``, or ``None``."""
+    root = dataset_dir(name)
+    try:
+        ptr = json.loads((root / POINTER).read_text())
+        path = root / str(ptr["fingerprint"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    meta = _valid_cache(path)
+    return None if meta is None else (path, meta)
+
+
+def load_bandai2(name: str = "bandai2", mmap: bool = True):
+    """The last prepared cache as a :class:`~repro.data.clipset.ClipSet` (arrays memory-mapped,
+    read-only).  Raises MissingDataError naming the prepare command when there is none."""
+    found = current_cache(name)
+    if found is None:
+        raise MissingDataError(f"data set {name!r} is not prepared (or was prepared by an older "
+                               f"version); run: {prepare_command(name)}", dataset_dir(name))
+    path, meta = found
+    return open_cache(path, meta, name, mmap=mmap)
+
+
+def open_cache(path: Path, meta: dict, name: str, mmap: bool = True):
+    """The ClipSet stored in the cache folder ``path`` (see :func:`write_cache`)."""
+    from repro.data.clipset import ClipSet
+    from repro.motion.skeleton import Skeleton
+
+    arrs = {}
+    for k in ARRAYS:
+        try:
+            arrs[k] = np.load(path / f"{k}.npy", mmap_mode="r" if mmap else None, allow_pickle=False)
+        except (OSError, ValueError) as e:
+            raise DataError(f"prepared cache is damaged ({e}); run: {prepare_command(name)} --force",
+                            path / f"{k}.npy") from None
+    return ClipSet(
+        name=name, skeleton=Skeleton.from_dict(meta["skeleton"]), fps=float(meta["fps"]),
+        rotations=arrs["rotations"], root=arrs["root"], joints=arrs["joints"],
+        starts=arrs["starts"], lengths=arrs["lengths"], labels=arrs["labels"],
+        label_names=tuple(meta["label_names"]), styles=arrs["styles"],
+        style_names=tuple(meta["style_names"]), clip_names=tuple(meta["clip_names"]),
+        split=arrs["split"], fingerprint=meta["fingerprint"],
+    )

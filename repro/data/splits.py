@@ -1,0 +1,112 @@
+"""Deterministic train/test splits of a :class:`~repro.data.clipset.ClipSet`.
+
+Two splits, both seeded (:func:`repro.seeding.numpy_rng`, one independent stream per stratum,
+so adding a class never reshuffles another):
+
+- :func:`stratified_split`: the stand-in's default split, stratified by action *and* style
+  (default 80/20).  Within each (action, style) cell the clips are shuffled and the first
+  ``round(n * test_fraction)`` go to test (half-up rounding).
+- :func:`marionette_split`: Neural Marionette Sec. 5.1.1 ("for every action class, we randomly
+  select 20% to 100 samples to construct a testing set and use the rest data for training"),
+  read as ``min(cap, round(0.2 * n_class))`` test clips per class, classes only (protocols.md §5).
+
+Both return an ``int8`` array, 0 = train and 1 = test (:data:`~repro.data.clipset.TRAIN`,
+:data:`~repro.data.clipset.TEST`); :func:`with_split` puts one on a ClipSet.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from repro.data.clipset import TEST, TRAIN, ClipSet
+from repro.seeding import numpy_rng
+
+#: Seed of the stored default split of the stand-in data sets.
+DEFAULT_SPLIT_SEED = 0
+DEFAULT_TEST_FRACTION = 0.2
+
+
+def _n_test(n: int, fraction: float) -> int:
+    return int(math.floor(n * fraction + 0.5))
+
+
+def _check_fraction(test_fraction: float) -> None:
+    if not 0.0 <= test_fraction < 1.0:
+        raise ValueError(f"test_fraction must be in [0, 1), got {test_fraction}")
+
+
+def stratified_split(labels, styles=None, *, test_fraction: float = DEFAULT_TEST_FRACTION,
+                     seed: int = DEFAULT_SPLIT_SEED) -> np.ndarray:
+    """A seeded split stratified by (label, style): per cell, ``round(n·f)`` clips go to test.
+
+    ``labels``, ``styles``: (N,) ints (``styles=None`` or ``-1`` entries: stratify by label only).
+    Clip order defines identity: the same arrays and seed give the same split, byte for byte.
+    """
+    _check_fraction(test_fraction)
+    labels = np.asarray(labels, np.int64)
+    styles = np.full_like(labels, -1) if styles is None else np.asarray(styles, np.int64)
+    if styles.shape != labels.shape:
+        raise ValueError("labels and styles differ in shape")
+    split = np.full(labels.shape[0], TRAIN, dtype=np.int8)
+    cells = sorted(set(zip(labels.tolist(), styles.tolist())))
+    for lab, sty in cells:
+        idx = np.flatnonzero((labels == lab) & (styles == sty))
+        k = _n_test(idx.size, test_fraction)
+        if k:
+            rng = numpy_rng(seed, "stratified_split", test_fraction, lab, sty)
+            split[rng.permutation(idx)[:k]] = TEST
+    return split
+
+
+def marionette_split(labels, *, seed: int = DEFAULT_SPLIT_SEED, fraction: float = 0.2,
+                     cap: int = 100) -> np.ndarray:
+    """Neural Marionette's test split (Sec. 5.1.1): per class, ``min(cap, round(fraction·n))``
+    randomly chosen clips are test, the rest train.  Seeded; classes are independent streams."""
+    _check_fraction(fraction)
+    if cap < 0:
+        raise ValueError("cap must be >= 0")
+    labels = np.asarray(labels, np.int64)
+    split = np.full(labels.shape[0], TRAIN, dtype=np.int8)
+    for lab in np.unique(labels).tolist():
+        idx = np.flatnonzero(labels == lab)
+        k = min(cap, _n_test(idx.size, fraction))
+        if k:
+            rng = numpy_rng(seed, "marionette_split", fraction, cap, lab)
+            split[rng.permutation(idx)[:k]] = TEST
+    return split
+
+
+def with_split(clips: ClipSet, split) -> ClipSet:
+    """A copy of ``clips`` sharing its arrays, with ``split`` as its train/test assignment.
+
+    The fingerprint gains the split's content key, so caches keyed on it stay honest.
+    """
+    from repro.keys import content_key
+
+    split = np.asarray(split, dtype=np.int8)
+    if split.shape != (len(clips),):
+        raise ValueError(f"split must have shape ({len(clips)},), got {split.shape}")
+    if not np.isin(split, (TRAIN, TEST)).all():
+        raise ValueError("split values must be 0 (train) or 1 (test)")
+    if np.array_equal(split, clips.split):
+        return clips
+    fp = content_key({"base": clips.fingerprint, "split": split.tolist()})
+    return dataclasses.replace(clips, split=split, fingerprint=fp)
+
+
+def marionette_clipset(clips: ClipSet, *, seed: int = DEFAULT_SPLIT_SEED, fraction: float = 0.2,
+                       cap: int = 100) -> ClipSet:
+    """``clips`` with Neural Marionette's per-class test split (see :func:`marionette_split`)."""
+    return with_split(clips, marionette_split(clips.labels, seed=seed, fraction=fraction, cap=cap))
+
+
+def split_counts(labels, split, n_classes: int | None = None) -> dict[str, list[int]]:
+    """Per-class train and test counts (for reports and tests)."""
+    labels = np.asarray(labels, np.int64)
+    split = np.asarray(split)
+    n = int(n_classes if n_classes is not None else (labels.max() + 1 if labels.size else 0))
+    return {"train": np.bincount(labels[split == TRAIN], minlength=n).tolist(),
+            "test": np.bincount(labels[split == TEST], minlength=n).tolist()}
