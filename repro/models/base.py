@@ -1,0 +1,225 @@
+"""The one interface every generative method implements: :class:`Generator`.
+
+A method is a subclass with two class attributes,
+
+- ``method_id``: the short name used in table specs and content keys (``"marionet"``, ...);
+- ``Config``: a pydantic model (subclass of :class:`GeneratorConfig`, ``extra="forbid"``) whose
+  defaults are the paper's hyper-parameters; scale profiles override fields,
+
+and four operations:
+
+- ``Generator(config, skeleton, n_classes, fps)``: ``config`` is a ``Config``, a mapping of
+  overrides or ``None`` (the paper defaults); a bad override is a :class:`~repro.errors.ConfigError`;
+- ``fit(train_items, *, seed, ckpt_dir=None, on_epoch=None) -> TrainResult``: trains through
+  :func:`repro.train.train` (seeded epochs, atomic checkpoints, exact resume; use
+  :meth:`Generator.train_config` as the loop's resume guard);
+- ``sample(cond_items, *, seed, use_mean=False) -> GeneratedItems``: one generated action per
+  condition item, **in the original world frame** (un-normalised), same order;
+- ``save(dir)`` / ``Generator.load(dir)``: ``config.json`` (method, config, skeleton, classes,
+  fps) beside ``weights.pt`` (a ``state_dict``, read back with ``weights_only=True``).
+
+Conditions differ per method: ACTOR and ODMO read only the label (and the duration); MarioNet,
+MANN and the adapted Action2Motion read label + initial motion + duration + next label +
+trajectory.  :class:`repro.models.items.ActionItems` carries all of them and each method reads
+what it uses (declared in ``uses`` so protocols can say what a method saw).
+"""
+
+from __future__ import annotations
+
+import abc
+import importlib
+import json
+import os
+from pathlib import Path
+from typing import Any, Callable, ClassVar, Mapping
+
+from pydantic import BaseModel, ConfigDict, ValidationError
+
+from repro.errors import ConfigError, DataError, MissingDataError
+from repro.keys import canonical_json, content_key
+from repro.motion.skeleton import Skeleton
+
+CONFIG_FILE = "config.json"
+WEIGHTS_FILE = "weights.pt"
+SAVE_FORMAT = 1
+
+#: Condition fields a method may read (``Generator.uses``).
+CONDITION_FIELDS = frozenset({"label", "length", "initial_motion", "next_label", "trajectory"})
+
+
+class GeneratorConfig(BaseModel):
+    """Base of every method's ``Config``: unknown fields are errors; values are immutable."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    @classmethod
+    def resolve(cls, overrides: "GeneratorConfig | Mapping[str, Any] | None" = None,
+                *, where: str = "config"):
+        """``overrides`` applied over the paper defaults; a ConfigError names the bad field."""
+        if overrides is None:
+            return cls()
+        if isinstance(overrides, cls):
+            return overrides
+        if isinstance(overrides, BaseModel):
+            overrides = overrides.model_dump()
+        try:
+            return cls(**dict(overrides))
+        except ValidationError as e:
+            err = e.errors()[0]
+            field = ".".join(str(p) for p in err.get("loc", ())) or "?"
+            raise ConfigError(f"{where}: {cls.__qualname__} field {field!r}: {err['msg']}") from None
+
+
+# ---------------------------------------------------------------------------------------------
+# registry: method_id -> class (modules imported lazily so `repro --help` stays fast)
+
+#: method_id -> module that defines (and registers) it.  Add a line per new method.
+GENERATOR_MODULES: dict[str, str] = {
+    "marionet": "repro.models.marionet",
+    "nearest_clip": "repro.models.nearest_clip",
+    "mann": "repro.models.mann",
+    "a2m": "repro.models.a2m",
+    "actor": "repro.models.actor",
+}
+_REGISTRY: dict[str, type["Generator"]] = {}
+
+
+def register(cls: type["Generator"]) -> type["Generator"]:
+    """Class decorator: make ``cls`` findable by :func:`generator_class`."""
+    mid = getattr(cls, "method_id", None)
+    if not isinstance(mid, str) or not mid:
+        raise TypeError(f"{cls.__name__} needs a non-empty str method_id")
+    other = _REGISTRY.get(mid)
+    if other is not None and other.__qualname__ != cls.__qualname__:
+        raise TypeError(f"method_id {mid!r} is taken by {other.__qualname__}")
+    _REGISTRY[mid] = cls
+    return cls
+
+
+def generator_class(method_id: str) -> type["Generator"]:
+    """The Generator subclass registered under ``method_id`` (ConfigError if unknown)."""
+    if method_id not in _REGISTRY and method_id in GENERATOR_MODULES:
+        importlib.import_module(GENERATOR_MODULES[method_id])
+    try:
+        return _REGISTRY[method_id]
+    except KeyError:
+        import difflib
+
+        known = sorted(set(GENERATOR_MODULES) | set(_REGISTRY))
+        near = difflib.get_close_matches(method_id, known, n=1)
+        hint = f"; did you mean {near[0]!r}?" if near else f"; known: {', '.join(known)}"
+        raise ConfigError(f"unknown method {method_id!r}{hint}") from None
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+class Generator(abc.ABC):
+    """A trainable action-conditioned motion generator (see module docstring)."""
+
+    method_id: ClassVar[str]
+    Config: ClassVar[type[GeneratorConfig]]
+    #: the condition fields (``CONDITION_FIELDS``) this method reads
+    uses: ClassVar[frozenset[str]] = frozenset({"label", "length"})
+
+    def __init__(self, config: GeneratorConfig | Mapping[str, Any] | None, skeleton: Skeleton,
+                 n_classes: int, fps: float):
+        self.config = self.Config.resolve(config, where=self.method_id)
+        if not isinstance(skeleton, Skeleton):
+            raise TypeError("skeleton must be a repro.motion.skeleton.Skeleton")
+        if int(n_classes) < 1:
+            raise ConfigError(f"{self.method_id}: n_classes must be >= 1, got {n_classes}")
+        if not float(fps) > 0:
+            raise ConfigError(f"{self.method_id}: fps must be > 0, got {fps}")
+        self.skeleton = skeleton
+        self.n_classes = int(n_classes)
+        self.fps = float(fps)
+
+    # -- what the subclass provides ----------------------------------------------------------
+
+    @property
+    @abc.abstractmethod
+    def network(self):
+        """The ``torch.nn.Module`` holding every learned parameter and buffer."""
+
+    @abc.abstractmethod
+    def fit(self, train_items, *, seed: int, ckpt_dir: str | Path | None = None,
+            on_epoch: Callable[[int, dict[str, float]], None] | None = None):
+        """Train on ``train_items`` (an ActionItems); returns :class:`repro.train.loop.TrainResult`."""
+
+    @abc.abstractmethod
+    def sample(self, cond_items, *, seed: int, use_mean: bool = False):
+        """One action per item of ``cond_items``: a GeneratedItems in the world frame."""
+
+    # -- shared --------------------------------------------------------------------------------
+
+    def describe(self) -> dict:
+        """Everything that defines this generator before training (enters content keys)."""
+        return {"method_id": self.method_id, "config": self.config.model_dump(mode="json"),
+                "skeleton": self.skeleton.fingerprint(), "n_classes": self.n_classes,
+                "fps": self.fps}
+
+    def train_config(self, train_items, seed: int) -> dict:
+        """The resume guard for :func:`repro.train.train`: a checkpoint is resumed only when
+        the generator, the training items and the seed are all the same."""
+        return {"generator": self.describe(), "items": train_items.key(), "seed": int(seed)}
+
+    def key(self) -> str:
+        return content_key(self.describe())
+
+    def save(self, directory: str | Path) -> Path:
+        """Write ``config.json`` and ``weights.pt`` into ``directory`` (atomically each)."""
+        import torch
+
+        d = Path(directory)
+        d.mkdir(parents=True, exist_ok=True)
+        meta = {"format": SAVE_FORMAT, "method_id": self.method_id,
+                "config": self.config.model_dump(mode="json"), "skeleton": self.skeleton.to_dict(),
+                "n_classes": self.n_classes, "fps": self.fps}
+        tmp = d / f".{WEIGHTS_FILE}.{os.getpid()}.tmp"
+        torch.save(self.network.state_dict(), tmp)
+        os.replace(tmp, d / WEIGHTS_FILE)
+        tmp = d / f".{CONFIG_FILE}.{os.getpid()}.tmp"
+        tmp.write_bytes(canonical_json(meta))
+        os.replace(tmp, d / CONFIG_FILE)
+        return d
+
+    @classmethod
+    def load(cls, directory: str | Path) -> "Generator":
+        """Rebuild a saved generator; on the base class the saved ``method_id`` picks the class."""
+        import torch
+
+        d = Path(directory)
+        cfg_path, w_path = d / CONFIG_FILE, d / WEIGHTS_FILE
+        for p in (cfg_path, w_path):
+            if not p.is_file():
+                raise MissingDataError(f"no saved generator here (missing {p.name})", d)
+        try:
+            meta = json.loads(cfg_path.read_text())
+            method_id = meta["method_id"]
+            skeleton = Skeleton.from_dict(meta["skeleton"])
+        except (ValueError, KeyError, TypeError) as e:
+            raise DataError(f"unreadable generator config ({e})", cfg_path) from None
+        if meta.get("format") != SAVE_FORMAT:
+            raise DataError(f"unsupported save format {meta.get('format')!r}", cfg_path)
+        klass = generator_class(method_id) if cls is Generator else cls
+        if klass.method_id != method_id:
+            raise DataError(f"saved method is {method_id!r}, not {klass.method_id!r}", cfg_path)
+        gen = klass(meta["config"], skeleton, meta["n_classes"], meta["fps"])
+        try:
+            state = torch.load(w_path, map_location="cpu", weights_only=True)
+            gen.network.load_state_dict(state)
+        except Exception as e:  # torn file, foreign weights, shape mismatch
+            raise DataError(f"cannot load weights ({type(e).__name__}: {e})", w_path) from None
+        gen.network.eval()
+        return gen
+
+
+def epoch_batches(n_items: int, batch_size: int, generator, *, drop_last: bool = False):
+    """Index batches of one epoch: a permutation drawn only from ``generator`` (the training
+    loop's per-epoch ``torch.Generator``), cut into ``batch_size`` chunks."""
+    import torch
+
+    perm = torch.randperm(n_items, generator=generator)
+    stop = n_items - n_items % batch_size if drop_last else n_items
+    return [perm[i:i + batch_size] for i in range(0, stop, batch_size) if len(perm[i:i + batch_size])]
