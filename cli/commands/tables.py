@@ -107,6 +107,7 @@ def cmd_run(args) -> int:
     from repro.engine.runner import run_table, table_view
     from repro.report import render
 
+    rc = 0
     for name in args.tables:
         plan, summary, run_id = run_table(name, scale=args.scale, dataset=args.dataset,
                                           jobs=args.jobs, force=args.force,
@@ -117,7 +118,11 @@ def cmd_run(args) -> int:
               file=sys.stderr)
         view = table_view(name, scale=args.scale, dataset=args.dataset, run=run_id)
         sys.stdout.write(render(view, args.format))
-    return 0
+        failed = [r for r, st in summary.get("rows", {}).items() if st.get("status") == "failed"]
+        if failed:
+            print(f"repro: {plan.spec.id}: rows failed: {', '.join(failed)}", file=sys.stderr)
+            rc = 1
+    return rc
 
 
 def cmd_show(args) -> int:

@@ -58,7 +58,7 @@ def _footer(plan, evaluators: dict[str, Any], run_id: str | None) -> list[str]:
 
 def _evaluators(plan, *, train: bool, progress: bool) -> dict[str, str]:
     """Describe (and, with ``train``, train or load) every band's evaluator."""
-    from repro.eval.provider import get_evaluator
+    from repro.engine.steps import evaluator_for
 
     out: dict[str, str] = {}
     for b in plan.bands:
@@ -70,14 +70,16 @@ def _evaluators(plan, *, train: bool, progress: bool) -> dict[str, str]:
             continue
         if progress:
             print(f"repro: evaluator {e['kind']} on {e['dataset']} ({e['scale']})…", file=sys.stderr)
-        ev = get_evaluator(e["dataset"], e["kind"], e["scale"], e["seed"])
+        ev = evaluator_for({"dataset": plan.dataset, "protocol": b.protocol,
+                            "protocol_params": b.params, "evaluator": e})
         out[b.evaluator_key] = ev.describe()
     return out
 
 
 def _gate(plan) -> None:
     """The real-data gate for every band that has a real row (evaluation issue, item 4)."""
-    from repro.eval import check_real_gate, evaluator_stats, get_evaluator, real_rows
+    from repro.engine.steps import _protocol, clipset, evaluator_clipset, evaluator_for
+    from repro.eval import check_real_gate, evaluator_stats, real_rows
 
     if not any(rp.method == "real" and rp.measures for rp in plan.rows):
         return
@@ -87,15 +89,18 @@ def _gate(plan) -> None:
             continue
         seen.add(b.evaluator_key)
         e = b.evaluator
-        ev = get_evaluator(e["dataset"], e["kind"], e["scale"], e["seed"])
-        rows = real_rows(e["dataset"], e["scale"], seed=0, kind=e["kind"], evaluator=ev)
+        cfg = {"dataset": plan.dataset, "protocol": b.protocol, "protocol_params": b.params,
+               "evaluator": e}
+        ev = evaluator_for(cfg)
+        clips = evaluator_clipset(_protocol(cfg), clipset(plan.dataset))
+        rows = real_rows(e["dataset"], e["scale"], seed=0, kind=e["kind"], evaluator=ev,
+                         clipset=clips)
         check_real_gate(rows, evaluator_stats(ev))
 
 
 def run_table(name: str, *, scale: str = "quick", dataset: str | None = None, jobs: int = 1,
               force: Any = None, progress: bool = True) -> tuple[Any, dict, str]:
     """Run one table; returns (plan, summary, run_id)."""
-    from repro.engine.executor import execute
     from repro.engine.tables import build_plan, collect_values, summarise
     from repro.store.runs import RunRecorder
 
@@ -108,24 +113,51 @@ def run_table(name: str, *, scale: str = "quick", dataset: str | None = None, jo
         evaluators = _evaluators(plan, train=bool(plan.jobs()), progress=progress)
         if plan.jobs():
             _gate(plan)
-        hook = None
-        if progress and plan.jobs():
-            from repro.engine.progress import RichProgressHook
-
-            hook = RichProgressHook()
-        if hook is not None:
-            with hook:
-                report = execute(plan.jobs(), jobs=jobs, force=force, hook=hook, recorder=rec)
-        else:
-            report = execute(plan.jobs(), jobs=jobs, force=force, recorder=rec)
-        values = collect_values(plan, report)
+        reports = _execute_rows(plan, jobs=jobs, force=force, progress=progress, recorder=rec)
+        values = collect_values(plan, reports)
         rec.add_values(values)
         summary = summarise(plan, values)
         summary["evaluators"] = evaluators
         summary["footer"] = _footer(plan, evaluators, rec.run_id)
-        summary["counts"] = report.counts
+        counts: dict[str, int] = {}
+        for r in reports.values():
+            for k, v in r.counts.items():
+                counts[k] = counts.get(k, 0) + v
+        summary["counts"] = counts
         rec.write_summary(summary)
     return plan, summary, rec.run_id
+
+
+def _execute_rows(plan, *, jobs: int, force: Any, progress: bool, recorder) -> dict[str, Any]:
+    """Execute each row's sub-graph; a row whose job fails is marked FAILED with the error and
+    the other rows go on (a user error, :class:`ReproError`, and Ctrl-C still stop the run)."""
+    from repro.engine.executor import execute
+    from repro.report.view import FAILED
+
+    reports: dict[str, Any] = {}
+    for rp in plan.rows:
+        targets = [j for js in rp.measures.values() for j in js]
+        if not targets:
+            continue
+        hook = None
+        if progress:
+            from repro.engine.progress import RichProgressHook
+
+            hook = RichProgressHook()
+        try:
+            if hook is not None:
+                with hook:
+                    reports[rp.row_id] = execute(targets, jobs=jobs, force=force, hook=hook,
+                                                 recorder=recorder)
+            else:
+                reports[rp.row_id] = execute(targets, jobs=jobs, force=force, recorder=recorder)
+        except (KeyboardInterrupt, ReproError):
+            raise
+        except Exception as e:  # a bug or a numerical failure in one method: say it, go on
+            rp.status, rp.reason = FAILED, f"{type(e).__name__}: {e}"
+            rp.measures = {}
+            print(f"repro: row {rp.row_id} failed: {rp.reason}", file=sys.stderr)
+    return reports
 
 
 def latest_run(table: str, scale: str | None = None, dataset: str | None = None) -> Path | None:
@@ -134,7 +166,7 @@ def latest_run(table: str, scale: str | None = None, dataset: str | None = None)
 
     for d in reversed(run_dirs()):
         try:
-            rj = read_run_json(d / "run.json")
+            rj = read_run_json(d)
         except ReproError:
             continue
         if rj.get("table") != table or rj.get("status") != FINISHED:

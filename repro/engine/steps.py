@@ -21,7 +21,8 @@ VALUES = "values.json"
 
 
 @lru_cache(maxsize=4)
-def _clipset(dataset: str):
+def clipset(dataset: str):
+    """The data set's ClipSet, loaded once per process (memory-mapped where it can be)."""
     from repro.data.registry import load_clipset
 
     return load_clipset(dataset)
@@ -33,11 +34,21 @@ def _protocol(cfg):
     return get_protocol(cfg["protocol"], cfg["protocol_params"])
 
 
-def _evaluator(cfg):
+def evaluator_clipset(protocol, clipset):
+    """The clips an evaluator for ``protocol`` trains on: the protocol's own split when it has
+    one (so no scored test clip was seen by the recogniser), else the data set's."""
+    split = getattr(protocol, "split_clipset", None)
+    return clipset if split is None else split(clipset)
+
+
+def evaluator_for(cfg: dict):
+    """The evaluator of a band: ``cfg`` holds ``dataset``, ``protocol``, ``protocol_params`` and
+    ``evaluator`` {dataset, kind, scale, seed}.  Trained once, then loaded from the store."""
     from repro.eval.provider import get_evaluator
 
     ev = cfg["evaluator"]
-    return get_evaluator(ev["dataset"], ev["kind"], ev["scale"], ev["seed"])
+    clips = evaluator_clipset(_protocol(cfg), clipset(cfg["dataset"]))
+    return get_evaluator(ev["dataset"], ev["kind"], ev["scale"], ev["seed"], clipset=clips)
 
 
 def _write_values(ctx, values: dict) -> None:
@@ -50,10 +61,10 @@ def train_method(ctx) -> None:
 
     cfg = ctx.config
     ctx.seed_globals()
-    clipset = _clipset(cfg["dataset"])
-    items = _protocol(cfg).train_items(clipset)
+    clips = clipset(cfg["dataset"])
+    items = _protocol(cfg).train_items(clips)
     cls = generator_class(cfg["method"])
-    gen = cls(cfg["method_config"], clipset.skeleton, clipset.n_classes, clipset.fps)
+    gen = cls(cfg["method_config"], clips.skeleton, clips.n_classes, clips.fps)
     epochs = cfg["method_config"].get("epochs")
 
     def on_epoch(epoch, rec):
@@ -74,9 +85,9 @@ def generate(ctx) -> None:
     cfg = ctx.config
     ctx.seed_globals()
     proto = _protocol(cfg)
-    items = proto.test_items(_clipset(cfg["dataset"]))
+    items = proto.test_items(clipset(cfg["dataset"]))
     gen = Generator.load(ctx.inputs[0].path)
-    out = proto.generate(gen, items, seed=ctx.seed, replicate=cfg["replicate"])
+    out = proto.generate(gen, items, seed=ctx.seed, replicate=cfg["replicate"], need=cfg["need"])
     proto.save_generated(out, ctx.out / GENERATED)
 
 
@@ -84,9 +95,9 @@ def measure(ctx) -> None:
     cfg = ctx.config
     ctx.seed_globals()
     proto = _protocol(cfg)
-    items = proto.test_items(_clipset(cfg["dataset"]))
+    items = proto.test_items(clipset(cfg["dataset"]))
     generated = proto.load_generated(ctx.inputs[0].path / GENERATED)
-    values = proto.measure(generated, items, _evaluator(cfg), seed=ctx.seed)
+    values = proto.measure(generated, items, evaluator_for(cfg), seed=ctx.seed)
     _write_values(ctx, values)
 
 
@@ -94,9 +105,9 @@ def measure_real(ctx) -> None:
     cfg = ctx.config
     ctx.seed_globals()
     proto = _protocol(cfg)
-    clipset = _clipset(cfg["dataset"])
-    items = proto.test_items(clipset)
-    values = proto.real_replicate(clipset, items, _evaluator(cfg), seed=ctx.seed,
+    clips = clipset(cfg["dataset"])
+    items = proto.test_items(clips)
+    values = proto.real_replicate(clips, items, evaluator_for(cfg), seed=ctx.seed,
                                   replicate=cfg["replicate"])
     _write_values(ctx, values)
 

@@ -33,8 +33,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from repro.engine.job import Job
-from repro.report.view import (DATA_UNAVAILABLE, FAILED, NOT_IMPLEMENTED, NOT_REPORTED, NOT_RUN,
-                               OK, CellView, ClaimView, ColumnView, RowView, TableView)
+from repro.report.view import (DATA_UNAVAILABLE, NOT_IMPLEMENTED, NOT_REPORTED, NOT_RUN, OK,
+                               CellView, ClaimView, ColumnView, RowView, TableView)
 
 STEPS = "repro.engine.steps"
 SUMMARY_SCHEMA = 1
@@ -56,6 +56,7 @@ class Band:
     reason: str | None = None
     evaluator: dict[str, Any] | None = None  # {dataset, kind, scale, seed}
     evaluator_key: str | None = None
+    version: int | None = None  # the protocol implementation's version
 
 
 @dataclass
@@ -138,7 +139,8 @@ def _method_config(method: str, scale, overrides: dict) -> tuple[dict | None, st
 
 
 def build_plan(spec, scale, dataset: str | None = None) -> TablePlan:
-    """Everything a run of ``spec`` at ``scale`` would do (no training, no data loading)."""
+    """Everything a run of ``spec`` at ``scale`` would do (no training; the data set is only
+    opened, memory-mapped, for the fingerprint of the evaluator's training split)."""
     from repro.eval.protocols import get_protocol, is_implemented
     from repro.eval.provider import evaluator_key
     from repro.eval.settings import resolve_settings
@@ -148,17 +150,23 @@ def build_plan(spec, scale, dataset: str | None = None) -> TablePlan:
     seeds = scale.seeds_for(spec.protocol)
     bands = _bands(spec, scale)
     settings = resolve_settings(scale.name)
+    clips = None
     for b in bands:
         if not is_implemented(b.protocol):
             b.reason = f"protocol {b.protocol!r} is not implemented yet"
             continue
         proto = get_protocol(b.protocol, b.params)
         b.implemented = True
-        b.params = proto.describe()
+        b.params = proto.params.describe()  # resolved defaults, as the steps get them back
+        b.version = proto.version
         b.evaluator = {"dataset": dataset, "kind": proto.evaluator_kind, "scale": scale.name,
                        "seed": 0}
         if fp is not None:
-            b.evaluator_key = evaluator_key(proto.evaluator_kind, settings, fp, 0)
+            from repro.engine.steps import clipset, evaluator_clipset
+
+            clips = clips or clipset(dataset)
+            b.evaluator_key = evaluator_key(proto.evaluator_kind, settings,
+                                            evaluator_clipset(proto, clips).fingerprint, 0)
     plan = TablePlan(spec, scale, dataset, fp, missing, seeds, bands, [])
     for row in spec.rows:
         rp = RowPlan(row.id, row.method)
@@ -174,7 +182,8 @@ def build_plan(spec, scale, dataset: str | None = None) -> TablePlan:
         for bi, b in enumerate(bands):
             if not b.implemented:
                 continue
-            base = {"dataset": dataset, "protocol": b.protocol, "protocol_params": b.params}
+            base = {"dataset": dataset, "protocol": b.protocol, "protocol_params": b.params,
+                    "protocol_version": b.version}
             fps = {"dataset": fp}
             if row.method == "real":
                 rp.measures[bi] = [
@@ -190,7 +199,8 @@ def build_plan(spec, scale, dataset: str | None = None) -> TablePlan:
             rp.train[bi] = train
             ms = []
             for r, s in enumerate(seeds):
-                gen = Job("generate", f"{STEPS}:generate", {**base, "replicate": r},
+                gen = Job("generate", f"{STEPS}:generate",
+                          {**base, "replicate": r, "need": sorted(set(b.metrics.values()))},
                           inputs=(train,), seed=s, fingerprints=fps,
                           label=f"{row.method}/generate/r{r}")
                 ms.append(Job("measure", f"{STEPS}:measure", {**base, "evaluator": b.evaluator},
@@ -208,12 +218,16 @@ def build_plan(spec, scale, dataset: str | None = None) -> TablePlan:
 # aggregation
 
 
-def collect_values(plan: TablePlan, report) -> list[dict]:
-    """Every raw replicate value of the run: one dict per (row, column, replicate)."""
+def collect_values(plan: TablePlan, reports: dict) -> list[dict]:
+    """Every raw replicate value of the run: one dict per (row, column, replicate);
+    ``reports`` maps row id -> that row's execution report."""
     from repro.engine.steps import read_values
 
     out = []
     for rp in plan.rows:
+        report = reports.get(rp.row_id)
+        if report is None:
+            continue
         for bi, jobs in rp.measures.items():
             band = plan.bands[bi]
             for r, job in enumerate(jobs):
@@ -339,7 +353,11 @@ def make_view(spec, plan_rows: dict[str, dict], summary: dict | None, footer: li
     from repro.specs import names
 
     cells = (summary or {}).get("cells", {})
-    cols = [ColumnView(c.id, c.label, c.direction or "", c.unit or "") for c in spec.columns]
+    cols = []
+    for c in spec.columns:
+        g = spec.group_of(c.id)
+        label = f"{g.label}: {c.label}" if g is not None else c.label
+        cols.append(ColumnView(c.id, label, c.direction or "", c.unit or ""))
     rows = []
     for row in spec.rows:
         st = plan_rows.get(row.id, {}).get("status", NOT_RUN)

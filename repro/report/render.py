@@ -45,7 +45,10 @@ def paper_text(c: CellView) -> str:
     return c.reported if c.reported is not None else "-"
 
 
-def _arrow(direction: str) -> str:
+def _arrow(direction: str, label: str = "") -> str:
+    """The direction mark, unless the paper's own header already carries one."""
+    if any(a in label for a in "↓↑→"):
+        return ""
     return {"lower": "↓", "higher": "↑", "closer_to_real": "→real"}.get(direction, "")
 
 
@@ -79,7 +82,7 @@ def _render_term(view: TableView) -> str:
     table.add_column("")
     for col in view.columns:
         unit = f" ({col.unit})" if col.unit else ""
-        table.add_column(f"{col.label}{_arrow(col.direction)}{unit}", overflow="fold")
+        table.add_column(f"{col.label}{_arrow(col.direction, col.label)}{unit}", overflow="fold")
     for row in view.rows:
         table.add_row(row.label, "paper", *[paper_text(row.cells.get(c.id, CellView())) for c in view.columns])
         ours = [ours_text(row.cells.get(c.id, CellView(status=row.status))) for c in view.columns]
@@ -98,7 +101,7 @@ def _render_term(view: TableView) -> str:
 
 
 def _render_md(view: TableView) -> str:
-    head = ["row", ""] + [f"{c.label}{_arrow(c.direction)}" for c in view.columns]
+    head = ["row", ""] + [f"{c.label}{_arrow(c.direction, c.label)}" for c in view.columns]
     lines = [f"### {_title(view)}", "", "| " + " | ".join(head) + " |",
              "|" + "---|" * len(head)]
     for row in view.rows:
@@ -125,7 +128,7 @@ def _render_latex(view: TableView) -> str:
     n = len(view.columns)
     out = [r"\begin{table}[t]", r"\centering", r"\caption{" + _tex(_title(view)) + "}",
            r"\begin{tabular}{ll" + "c" * n + "}", r"\toprule",
-           " & & " + " & ".join(_tex(c.label + _arrow(c.direction)) for c in view.columns) + r" \\",
+           " & & " + " & ".join(_tex(c.label + _arrow(c.direction, c.label)) for c in view.columns) + r" \\",
            r"\midrule"]
     for row in view.rows:
         out.append(_tex(row.label) + " & paper & " + " & ".join(
@@ -140,7 +143,7 @@ def _render_latex(view: TableView) -> str:
 def _render_html(view: TableView) -> str:
     e = html.escape
     out = [f"<h3>{e(_title(view))}</h3>", "<table>", "<tr><th>row</th><th></th>" +
-           "".join(f"<th>{e(c.label + _arrow(c.direction))}</th>" for c in view.columns) + "</tr>"]
+           "".join(f"<th>{e(c.label + _arrow(c.direction, c.label))}</th>" for c in view.columns) + "</tr>"]
     for row in view.rows:
         out.append(f"<tr><td>{e(row.label)}</td><td>paper</td>" + "".join(
             f"<td>{e(paper_text(row.cells.get(c.id, CellView())))}</td>" for c in view.columns) + "</tr>")

@@ -1,0 +1,204 @@
+"""A table end to end through the spine (issue 4 "Done when"), at a tiny scale.
+
+A reduced Marionette Table 1 (the Real row and the harness's nearest-clip reference) runs on
+the bundled bandai2-mini with a tiny evaluator, so the whole graph — evaluator, gate, train,
+generate, measure, aggregate, run record, report, baseline check — is exercised in seconds.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from repro.paths import repo_root
+
+TINY_SCALES = """
+schema = 1
+version = 1
+
+[quick]
+description = "tiny test profile"
+dataset = "bandai2-mini"
+replicates = 3
+seed_base = 0
+bootstrap_resamples = 200
+
+[quick.evaluator]
+window = 30
+transformer = { d_model = 16, heads = 2, layers = 1, ff = 32, dropout = 0.0 }
+train = { epochs = 3, windows_per_epoch = 128, batch_size = 64, checkpoint_every = 1 }
+real = { per_class = 6, replicates = 2, max_fid = 1000.0, gate_margin = 1.0 }
+
+[quick.protocols.single_action]
+samples_per_class = 3
+max_frames = 40
+
+[medium]
+description = "unused"
+replicates = 2
+bootstrap_resamples = 200
+
+[paper]
+description = "unused"
+replicates = 2
+bootstrap_resamples = 200
+"""
+
+
+def _reduced_table1(src: Path, dst: Path) -> None:
+    """marionette/table1 with only the rows that need no trained generative model."""
+    import tomli_w
+
+    spec = tomllib.loads(src.read_text())
+    spec["rows"] = [r for r in spec["rows"] if r["method"] in ("real", "nearest_clip")]
+    spec["claims"] = [{
+        "id": "reference_vs_real_acc", "kind": "gap", "column": "acc", "a": "nearest_clip",
+        "b": "real", "bound": "within", "delta": 1.0,
+        "source": spec["claims"][0]["source"],
+        "note": "test-only claim: exercises claim evaluation on rows that exist here",
+    }]
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    dst.write_text(tomli_w.dumps(spec))
+
+
+@pytest.fixture
+def tiny_tables(tmp_path, monkeypatch):
+    root = tmp_path / "tables"
+    _reduced_table1(repo_root() / "tables" / "marionette" / "table1.toml",
+                    root / "marionette" / "table1.toml")
+    (root / "scales.toml").write_text(TINY_SCALES)
+    monkeypatch.setenv("REPRO_TABLES", str(root))
+    return root
+
+
+def _repro(*args, env_home, tables, check=True):
+    import os
+
+    env = {**os.environ, "REPRO_HOME": str(env_home), "REPRO_TABLES": str(tables)}
+    out = subprocess.run([sys.executable, "-m", "cli.main", *args], capture_output=True,
+                         text=True, env=env, cwd=repo_root())
+    if check and out.returncode != 0:
+        raise AssertionError(f"repro {' '.join(args)} exited {out.returncode}:\n{out.stderr}")
+    return out
+
+
+def test_table_runs_end_to_end_then_all_hits(tiny_tables, _repro_home):
+    from repro.engine.runner import run_table, table_view
+    from repro.report import render
+
+    t0 = time.perf_counter()
+    plan, summary, run1 = run_table("marionette/table1", scale="quick", progress=False)
+    first = time.perf_counter() - t0
+    cells = summary["cells"]
+    assert set(cells) == {"real", "nearest_clip"}
+    for row in ("real", "nearest_clip"):
+        for col in ("fid", "acc", "div", "multimod"):
+            c = cells[row][col]
+            assert c["n"] == 3 and len(c["values"]) == 3
+            lo, hi = c["bootstrap_percentile"]
+            assert lo <= c["mean"] <= hi
+    assert "traj_err" in cells["nearest_clip"] and "traj_err" not in cells["real"]
+    claim = summary["claims"][0]
+    assert claim["verdict"] in ("supported", "contradicted", "inconclusive")
+    assert claim["probability"] is not None
+
+    # the run record is the truth: raw values on disk, read-only, indexed
+    run_dir = _repro_home / "runs" / run1
+    rj = json.loads((run_dir / "run.json").read_text())
+    assert rj["status"] == "FINISHED" and rj["table"] == "marionette/table1"
+    assert rj["spec"]["hash"] == plan.spec.spec_hash
+    n_lines = len((run_dir / "values.jsonl").read_text().splitlines())
+    assert n_lines == sum(c["n"] for r in cells.values() for c in r.values())
+
+    text = render(table_view("marionette/table1", run=run1), "term")
+    assert "STAND-IN" in text and "Real Test Data" in text
+    assert "not implemented" not in text  # the reduced spec has only built rows
+
+    # a second identical run is all cache hits and much faster
+    t0 = time.perf_counter()
+    _, summary2, run2 = run_table("marionette/table1", scale="quick", progress=False)
+    second = time.perf_counter() - t0
+    assert set(summary2["counts"]) == {"hit"}
+    assert summary2["cells"] == summary["cells"]
+    assert second <= 0.25 * first, (first, second)
+
+
+def test_corrupt_object_is_detected_and_rebuilt(tiny_tables, _repro_home):
+    from repro.engine.runner import run_table
+
+    _, s1, _ = run_table("marionette/table1", scale="quick", progress=False)
+    # corrupt the reference row's stored samples and the measured values read from them
+    hit = 0
+    for name in ("generated.npz", "values.json"):
+        for f in (_repro_home / "store" / "objects").rglob(name):
+            man = json.loads((f.parent / "manifest.json").read_text())
+            if man.get("kind") not in ("generate", "measure"):
+                continue
+            f.chmod(0o644)
+            b = bytearray(f.read_bytes())
+            b[len(b) // 2] ^= 0x01
+            f.write_bytes(bytes(b))
+            hit += 1
+    assert hit == 6
+    _, s2, _ = run_table("marionette/table1", scale="quick", progress=False)
+    # the measure objects are read (and found corrupt), recomputed from their samples, which
+    # are read in turn (and found corrupt) and regenerated: same values as before
+    assert s2["counts"].get("computed", 0) == 6, s2["counts"]
+    assert s2["cells"] == s1["cells"]
+    assert any((_repro_home / "store").rglob("quarantine*"))
+
+
+def test_concurrent_runs_agree_and_share_objects(tiny_tables, _repro_home):
+    import os
+
+    env = {**os.environ, "REPRO_HOME": str(_repro_home), "REPRO_TABLES": str(tiny_tables)}
+    cmd = [sys.executable, "-m", "cli.main", "run", "marionette/table1", "--scale", "quick",
+           "--quiet", "--format", "json"]
+    procs = [subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              env=env, cwd=repo_root()) for _ in range(2)]
+    outs = [p.communicate(timeout=900) for p in procs]
+    assert all(p.returncode == 0 for p in procs), [o[1][-2000:] for o in outs]
+    views = [json.loads(o[0]) for o in outs]
+    assert views[0]["rows"] == views[1]["rows"]
+    manifests = list((_repro_home / "store" / "objects").rglob("manifest.json"))
+    keys = [m.parent.name for m in manifests]
+    assert len(keys) == len(set(keys))
+
+
+def test_verify_against_baseline_and_hand_edit_fails(tiny_tables, _repro_home, tmp_path):
+    base = tmp_path / "baselines"
+    _repro("run", "marionette/table1", "--quiet", env_home=_repro_home, tables=tiny_tables)
+    _repro("verify", "marionette/table1", "--baseline", str(base), "--update",
+           env_home=_repro_home, tables=tiny_tables)
+    ok = _repro("verify", "marionette/table1", "--baseline", str(base),
+                env_home=_repro_home, tables=tiny_tables)
+    assert "matches the baseline" in ok.stdout
+    path = base / "marionette" / "table1.json"
+    data = json.loads(path.read_text())
+    data["cells"]["real"]["acc"]["mean"] += 0.5  # a hand edit
+    path.write_text(json.dumps(data, indent=2))
+    bad = _repro("verify", "marionette/table1", "--baseline", str(base),
+                 env_home=_repro_home, tables=tiny_tables, check=False)
+    assert bad.returncode == 1
+    assert "edited by hand" in bad.stdout and "real/acc" in bad.stdout
+
+
+def test_show_without_run_and_not_implemented_rows(_repro_home):
+    out = _repro("show", "marionette/table3", env_home=_repro_home,
+                 tables=repo_root() / "tables")
+    assert "not implemented" in out.stdout and "7.854" in out.stdout
+
+
+def test_unknown_table_is_one_line_exit_2(_repro_home):
+    out = _repro("run", "marionette/tabel1", env_home=_repro_home,
+                 tables=repo_root() / "tables", check=False)
+    assert out.returncode == 2
+    assert "did you mean 'marionette/table1'" in out.stderr
+    assert "Traceback" not in out.stderr
