@@ -1,0 +1,335 @@
+"""Action2Motion (Guo et al., ACM MM 2020) as Neural Marionette adapted it (supp. Sec. 4.1):
+"(1) replacing lie algebra representation of the joint rotations with 6D continuous
+representation; (2) providing A2M with the same initial pose as our setting rather than a rest
+pose".
+
+Network (Guo et al. Sec. 3, Fig. 2; sizes from the authors' code, docs/baselines.md): a temporal
+conditional VAE of three GRU networks run frame by frame, each an input FC embedding, a stack
+of GRU cells (hidden 128) and FC heads:
+
+- **posterior** ``q(z_t | x_{≤t}, a)`` (1 layer): input ``[x_t, c_t]`` → ``μ_t, log σ²_t``
+  (``dim_z`` = 30);
+- **prior** ``p(z_t | x_{<t}, a)`` (1 layer, the learned per-frame prior): input
+  ``[x_{t−1}, c_t]`` → ``μ^p_t, log (σ^p_t)²``;
+- **decoder** ``p(x_t | z_{≤t}, x_{<t}, a)`` (2 layers): input ``[x_{t−1}, c_t, z_t]`` → ``x̂_t``;
+
+with the condition ``c_t = [one-hot tag, t/(T−1)]`` (the "time counter"; ``time_counter``).
+``x_0`` is the last initial pose ``P₋₁`` (``initial_pose``, NM's adaptation) or the rest pose
+(identity rotations, root at the origin; A2M's zero Lie vector).
+
+Pose parameters ``x_t`` (``representation``):
+
+- ``"6d"`` (NM's adaptation, default): the pose vector of :mod:`repro.models.baseline_io`,
+  ``J×6`` local 6D rotations then the root translation; the decoder's head is linear;
+- ``"lie"`` (A2M's own): per-joint rotation vectors (axis × angle, the Lie algebra so(3); the
+  root's included since our root carries the heading) then the root translation; the head is
+  A2M's ``DecoderGRULie`` (root linear; rotations ``π·tanh(FC(tanh(h)))``).
+
+Training (Guo et al. Eq. 5; the authors' trainer): for each frame,
+``L_t = MSE(FK(x̂_t), FK(x_t)) + λ_KL·KL(q(z_t) ‖ p(z_t)) [+ λ_param·MSE(x̂_t, x_t)]``, the
+reconstruction on joint positions in metres (root translation included) by forward kinematics
+on the data set's skeleton (A2M's default ``mse_lie``: joints from the generated parameters and
+the target's bones), the KL summed over latent dimensions; ``L = Σ_t L_t`` over each item's
+frames, averaged over the batch.  ``z_t`` comes from the posterior (reparameterised).  With
+probability ``self_feed_ratio`` (0.6; the authors' ``--tf_ratio``, whose flag feeds the
+prediction back) a batch feeds the decoder's own prediction ``x̂_{t}`` (with gradient) as the
+next ``x_t``; otherwise the data.  Adam, lr 2e-4, weight decay 1e-5, batch 128.
+
+Sampling: ``z_t ~ p(z_t | x_{<t}, a)`` (``μ^p_t`` when ``use_mean``), ``x̂_t`` fed back; noise
+drawn per item from the seed.  Units: metres, frames at the items' fps.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Callable, Literal
+
+import torch
+import torch.nn.functional as F
+from pydantic import model_validator
+from torch import nn
+
+from repro.models.base import Generator, GeneratorConfig, epoch_batches, register
+from repro.models.baseline_io import (check_items, item_noise, length_mask, pack_poses,
+                                      pose_joints, to_generated, unpack_poses)
+from repro.models.items import ActionItems, GeneratedItems
+from repro.motion.rotations import (axis_angle_to_matrix, matrix_to_6d, matrix_to_axis_angle,
+                                    sixd_to_matrix)
+from repro.seeding import derive_seed
+
+
+class A2MConfig(GeneratorConfig):
+    """Action2Motion hyper-parameters; defaults = the authors' HumanAct12 settings, with Neural
+    Marionette's two adaptations (6D rotations, the initial pose) switched on."""
+
+    representation: Literal["6d", "lie"] = "6d"   # NM: 6D instead of A2M's Lie algebra
+    initial_pose: bool = True                     # NM: x_0 = last initial pose (A2M: rest pose)
+    dim_z: int = 30
+    hidden: int = 128
+    prior_layers: int = 1
+    posterior_layers: int = 1
+    decoder_layers: int = 2
+    time_counter: bool = True
+    lambda_kld: float = 1e-3
+    lambda_param: float = 0.0          # extra MSE on the pose parameters (0: A2M's joint loss)
+    self_feed_ratio: float = 0.6       # authors' --tf_ratio (see module docstring)
+    batch_size: int = 128
+    epochs: int = 1000                 # ≈ A2M's 50,000 iterations of 128 on BABEL-MAG's size
+    lr: float = 2e-4
+    weight_decay: float = 1e-5
+    sample_batch_size: int = 256
+
+    @model_validator(mode="after")
+    def _check(self):
+        for f in ("dim_z", "hidden", "prior_layers", "posterior_layers", "decoder_layers",
+                  "batch_size", "epochs", "sample_batch_size"):
+            if getattr(self, f) < 1:
+                raise ValueError(f"{f} must be >= 1")
+        if not 0.0 <= self.self_feed_ratio <= 1.0:
+            raise ValueError("self_feed_ratio must lie in [0, 1]")
+        if self.lambda_kld < 0 or self.lambda_param < 0 or self.lr <= 0:
+            raise ValueError("loss weights must be >= 0 and lr > 0")
+        return self
+
+
+class GaussianGRU(nn.Module):
+    """FC embedding → stacked GRU cells → (μ, log σ²) heads (A2M's prior/posterior networks)."""
+
+    def __init__(self, n_in: int, n_out: int, hidden: int, layers: int):
+        super().__init__()
+        self.embed = nn.Linear(n_in, hidden)
+        self.cells = nn.ModuleList(nn.GRUCell(hidden, hidden) for _ in range(layers))
+        self.mu = nn.Linear(hidden, n_out)
+        self.logvar = nn.Linear(hidden, n_out)
+
+    def init_hidden(self, B: int, like: torch.Tensor) -> list[torch.Tensor]:
+        return [like.new_zeros(B, c.hidden_size) for c in self.cells]
+
+    def forward(self, x, hidden):
+        h = self.embed(x)
+        new = []
+        for cell, hc in zip(self.cells, hidden):
+            h = cell(h, hc)
+            new.append(h)
+        return self.mu(h), self.logvar(h), new
+
+
+class DecoderGRU(nn.Module):
+    """FC embedding → stacked GRU cells → pose parameters (A2M's generator).  With ``lie`` the
+    head is ``DecoderGRULie``'s: root linear, rotations ``π·tanh(FC(tanh(h)))``."""
+
+    def __init__(self, n_in: int, n_out: int, hidden: int, layers: int, lie: bool):
+        super().__init__()
+        self.embed = nn.Linear(n_in, hidden)
+        self.cells = nn.ModuleList(nn.GRUCell(hidden, hidden) for _ in range(layers))
+        self.out = nn.Linear(hidden, n_out)
+        self.lie = lie
+        if lie:
+            self.out_lie = nn.Linear(n_out - 3, n_out - 3)
+
+    def init_hidden(self, B: int, like: torch.Tensor) -> list[torch.Tensor]:
+        return [like.new_zeros(B, c.hidden_size) for c in self.cells]
+
+    def forward(self, x, hidden):
+        h = self.embed(x)
+        new = []
+        for cell, hc in zip(self.cells, hidden):
+            h = cell(h, hc)
+            new.append(h)
+        y = self.out(h)
+        if self.lie:
+            rot = math.pi * torch.tanh(self.out_lie(torch.tanh(y[..., :-3])))
+            y = torch.cat([rot, y[..., -3:]], dim=-1)
+        return y, new
+
+
+class A2MNet(nn.Module):
+    """The three GRU networks (module docstring)."""
+
+    def __init__(self, cfg: A2MConfig, n_params: int, n_classes: int):
+        super().__init__()
+        self.cfg, self.n_params, self.n_classes = cfg, n_params, n_classes
+        n_cond = n_classes + (1 if cfg.time_counter else 0)
+        n_in = n_params + n_cond
+        self.posterior = GaussianGRU(n_in, cfg.dim_z, cfg.hidden, cfg.posterior_layers)
+        self.prior = GaussianGRU(n_in, cfg.dim_z, cfg.hidden, cfg.prior_layers)
+        self.decoder = DecoderGRU(n_in + cfg.dim_z, n_params, cfg.hidden, cfg.decoder_layers,
+                                  cfg.representation == "lie")
+
+    def condition(self, onehot: torch.Tensor, t: int, lengths: torch.Tensor) -> torch.Tensor:
+        """``c_t``: the one-hot tag, plus ``t/(T−1)`` per item when the time counter is on."""
+        if not self.cfg.time_counter:
+            return onehot
+        tc = t / (lengths - 1).clamp(min=1).to(onehot.dtype)
+        return torch.cat([onehot, tc[:, None]], dim=-1)
+
+
+def kl_gaussians(mu1, logvar1, mu2, logvar2) -> torch.Tensor:
+    """KL(N(μ₁, σ₁²) ‖ N(μ₂, σ₂²)) summed over the last dimension (A2M's ``kl_criterion``)."""
+    return (0.5 * (logvar2 - logvar1)
+            + (logvar1.exp() + (mu1 - mu2) ** 2) / (2 * logvar2.exp()) - 0.5).sum(-1)
+
+
+@register
+class A2M(Generator):
+    """Action2Motion (NM-adapted) behind the :class:`~repro.models.base.Generator` interface."""
+
+    method_id = "a2m"
+    Config = A2MConfig
+    uses = frozenset({"label", "length", "initial_motion"})
+
+    def __init__(self, config, skeleton, n_classes: int, fps: float):
+        super().__init__(config, skeleton, n_classes, fps)
+        if not self.config.initial_pose:
+            self.uses = frozenset({"label", "length"})  # A2M's own: starts from the rest pose
+        J = skeleton.n_joints
+        self.n_params = (6 if self.config.representation == "6d" else 3) * J + 3
+        self._build(derive_seed(0, self.method_id, "construct"))
+
+    def _build(self, init_seed: int) -> None:
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(init_seed)
+            self.net = A2MNet(self.config, self.n_params, self.n_classes)
+        self.net.eval()
+
+    @property
+    def network(self) -> A2MNet:
+        return self.net
+
+    # -- representation ------------------------------------------------------------------------
+    def to_params(self, poses: torch.Tensor) -> torch.Tensor:
+        """Pose vectors (..., 6J+3) → the representation's parameters (..., n_params)."""
+        if self.config.representation == "6d":
+            return poses
+        rot6d, root = unpack_poses(poses, self.skeleton.n_joints)
+        aa = matrix_to_axis_angle(sixd_to_matrix(rot6d))
+        return torch.cat([aa.reshape(aa.shape[:-2] + (-1,)), root], dim=-1)
+
+    def to_poses(self, params: torch.Tensor) -> torch.Tensor:
+        """Parameters (..., n_params) → pose vectors (..., 6J+3) (rotations not orthonormalised
+        for ``6d``; the pose-vector readers apply Gram-Schmidt)."""
+        if self.config.representation == "6d":
+            return params
+        J = self.skeleton.n_joints
+        aa = params[..., :-3].reshape(params.shape[:-1] + (J, 3))
+        rot6d = matrix_to_6d(axis_angle_to_matrix(aa))
+        return torch.cat([rot6d.reshape(rot6d.shape[:-2] + (-1,)), params[..., -3:]], dim=-1)
+
+    def start_params(self, items: ActionItems) -> torch.Tensor:
+        """``x_0`` (N, n_params): the last initial pose, or the rest pose (module docstring)."""
+        if self.config.initial_pose:
+            return self.to_params(pack_poses(items.initial)[:, -1])
+        J, N = self.skeleton.n_joints, len(items)
+        rest = torch.eye(3).expand(N, J, 3, 3)
+        poses = torch.cat([matrix_to_6d(rest).reshape(N, -1), torch.zeros(N, 3)], dim=-1)
+        return self.to_params(poses)
+
+    # -- training ------------------------------------------------------------------------------
+    def training_step(self, net: A2MNet, batch: dict, epoch: int) -> dict[str, torch.Tensor]:
+        """``L`` of the module docstring on one batch (posterior noise and the self-feeding
+        draw from the global torch RNG, which the training loop seeds per epoch)."""
+        cfg = self.config
+        x, lengths = batch["params"], batch["lengths"]
+        B, T = x.shape[:2]
+        mask = length_mask(lengths, T).to(x.dtype)
+        onehot = F.one_hot(batch["labels"], self.n_classes).to(x.dtype)
+        h_post = net.posterior.init_hidden(B, x)
+        h_prior = net.prior.init_hidden(B, x)
+        h_dec = net.decoder.init_hidden(B, x)
+        self_feed = bool(torch.rand(()) < cfg.self_feed_ratio)
+        prev = batch["start"]
+        preds, kls = [], []
+        for t in range(T):
+            c = net.condition(onehot, t, lengths)
+            mu, logvar, h_post = net.posterior(torch.cat([x[:, t], c], -1), h_post)
+            mu_p, logvar_p, h_prior = net.prior(torch.cat([prev, c], -1), h_prior)
+            z = mu + torch.exp(0.5 * logvar) * torch.randn_like(mu)
+            x_hat, h_dec = net.decoder(torch.cat([prev, c, z], -1), h_dec)
+            preds.append(x_hat)
+            kls.append(kl_gaussians(mu, logvar, mu_p, logvar_p))
+            prev = x_hat if self_feed else x[:, t]
+        pred = torch.stack(preds, 1)                                   # (B, T, n_params)
+        kl = (torch.stack(kls, 1) * mask).sum(1).mean()
+        joints = pose_joints(self.skeleton, self.to_poses(pred))       # (B, T, J, 3)
+        rec = ((((joints - batch["joints"]) ** 2).mean((-1, -2))) * mask).sum(1).mean()
+        loss = rec + cfg.lambda_kld * kl
+        out = {"rec": rec.detach(), "kl": kl.detach()}
+        if cfg.lambda_param > 0:
+            par = ((((pred - x) ** 2).mean(-1)) * mask).sum(1).mean()
+            loss = loss + cfg.lambda_param * par
+            out["param"] = par.detach()
+        with torch.no_grad():
+            err = (joints - batch["joints"]).norm(dim=-1).mean(-1)
+            out["mpjpe"] = (err * mask).sum() / mask.sum()
+        out["self_feed"] = x.new_tensor(float(self_feed))
+        return {"loss": loss, **out}
+
+    def _tensors(self, items: ActionItems) -> dict[str, torch.Tensor]:
+        target = pack_poses(items.action)
+        with torch.no_grad():
+            joints = pose_joints(self.skeleton, target)
+        return {"params": self.to_params(target), "joints": joints, "lengths": items.lengths,
+                "labels": items.labels, "start": self.start_params(items)}
+
+    @staticmethod
+    def _crop(data: dict, idx: torch.Tensor) -> dict:
+        T = int(data["lengths"][idx].max())
+        return {k: (v[idx][:, :T] if k in ("params", "joints") else v[idx]) for k, v in data.items()}
+
+    def fit(self, train_items: ActionItems, *, seed: int, ckpt_dir: str | Path | None = None,
+            on_epoch: Callable[[int, dict[str, float]], None] | None = None):
+        """Adam (lr 2e-4, weight decay 1e-5), batch 128, through the one training loop; weights
+        initialised from ``seed``."""
+        from repro.train.loop import train
+
+        check_items(self, train_items)
+        cfg = self.config
+        self._build(derive_seed(seed, self.method_id, "init"))
+        data = self._tensors(train_items)
+        n = len(train_items)
+
+        def batches(epoch, gen):
+            for idx in epoch_batches(n, cfg.batch_size, gen):
+                yield self._crop(data, idx)
+
+        opt = torch.optim.Adam(self.net.parameters(), lr=cfg.lr, betas=(0.9, 0.999),
+                               weight_decay=cfg.weight_decay)
+        result = train(self.net, opt, batches=batches, step=self.training_step,
+                       epochs=cfg.epochs, seed=seed, config=self.train_config(train_items, seed),
+                       ckpt_dir=ckpt_dir, on_epoch=on_epoch)
+        self.net.eval()
+        return result
+
+    # -- inference -----------------------------------------------------------------------------
+    @torch.no_grad()
+    def generate_poses(self, cond_items: ActionItems, *, seed: int,
+                       use_mean: bool = False) -> torch.Tensor:
+        """(N, T_max, 6J+3) poses in the items' normalised frames (module docstring)."""
+        check_items(self, cond_items)
+        cfg, net = self.config, self.net
+        net.eval()
+        N, Tmax = len(cond_items), int(cond_items.lengths.max())
+        eps = item_noise(seed, self.method_id, (N, Tmax, cfg.dim_z))
+        start = self.start_params(cond_items)
+        out = torch.zeros(N, Tmax, self.n_params)
+        for s in range(0, N, cfg.sample_batch_size):
+            idx = torch.arange(s, min(N, s + cfg.sample_batch_size))
+            lengths = cond_items.lengths[idx]
+            onehot = F.one_hot(cond_items.labels[idx], self.n_classes).float()
+            B = idx.numel()
+            h_prior = net.prior.init_hidden(B, start)
+            h_dec = net.decoder.init_hidden(B, start)
+            prev = start[idx]
+            for t in range(int(lengths.max())):
+                c = net.condition(onehot, t, lengths)
+                mu_p, logvar_p, h_prior = net.prior(torch.cat([prev, c], -1), h_prior)
+                z = mu_p if use_mean else mu_p + torch.exp(0.5 * logvar_p) * eps[idx, t]
+                prev, h_dec = net.decoder(torch.cat([prev, c, z], -1), h_dec)
+                out[idx, t] = prev
+        return self.to_poses(out)
+
+    def sample(self, cond_items: ActionItems, *, seed: int, use_mean: bool = False) -> GeneratedItems:
+        """One action per item, in the world frame (see :meth:`generate_poses`)."""
+        poses = self.generate_poses(cond_items, seed=seed, use_mean=use_mean)
+        return to_generated(self, cond_items, poses)
