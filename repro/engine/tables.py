@@ -134,7 +134,10 @@ def _method_config(method: str, scale, overrides: dict) -> tuple[dict | None, st
         cls = generator_class(method)
     except ConfigError as e:
         return None, str(e)
-    cfg = cls.Config.resolve({**scale.method_config(method), **overrides}, where=method)
+    try:
+        cfg = cls.Config.resolve({**scale.method_config(method), **overrides}, where=method)
+    except ConfigError as e:  # a variant the spec names but the method does not offer (yet)
+        return None, f"variant not implemented: {e}"
     return cfg.model_dump(mode="json"), None
 
 
@@ -173,6 +176,10 @@ def build_plan(spec, scale, dataset: str | None = None) -> TablePlan:
         plan.rows.append(rp)
         if missing is not None:
             rp.status, rp.reason = DATA_UNAVAILABLE, missing
+            continue
+        if not any(b.implemented for b in bands):
+            rp.status = NOT_IMPLEMENTED
+            rp.reason = "; ".join(sorted({b.reason for b in bands if b.reason}))
             continue
         if row.method != "real":
             mcfg, why = _method_config(row.method, scale, dict(row.overrides))
