@@ -187,11 +187,8 @@ class A2M(Generator):
         self.n_params = (6 if self.config.representation == "6d" else 3) * J + 3
         self._build(derive_seed(0, self.method_id, "construct"))
 
-    def _build(self, init_seed: int) -> None:
-        with torch.random.fork_rng(devices=[]):
-            torch.manual_seed(init_seed)
-            self.net = A2MNet(self.config, self.n_params, self.n_classes)
-        self.net.eval()
+    def _make_network(self) -> A2MNet:
+        return A2MNet(self.config, self.n_params, self.n_classes)
 
     @property
     def network(self) -> A2MNet:

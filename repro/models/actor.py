@@ -147,11 +147,8 @@ class ACTOR(Generator):
         super().__init__(config, skeleton, n_classes, fps)
         self._build(derive_seed(0, self.method_id, "construct"))
 
-    def _build(self, init_seed: int) -> None:
-        with torch.random.fork_rng(devices=[]):
-            torch.manual_seed(init_seed)
-            self.net = ACTORNet(self.config, self.skeleton.n_joints, self.n_classes)
-        self.net.eval()
+    def _make_network(self) -> ACTORNet:
+        return ACTORNet(self.config, self.skeleton.n_joints, self.n_classes)
 
     @property
     def network(self) -> ACTORNet:

@@ -153,6 +153,21 @@ class Generator(abc.ABC):
 
     # -- shared --------------------------------------------------------------------------------
 
+    def _make_network(self):
+        """A fresh, untrained ``torch.nn.Module`` for this config (subclasses using :meth:`_build`)."""
+        raise NotImplementedError
+
+    def _build(self, init_seed: int) -> None:
+        """(Re)build ``self.net`` with initial weights drawn from ``init_seed`` alone (the global
+        torch RNG is left as it was), in eval mode."""
+        import torch
+
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(init_seed)
+            self.net = self._make_network()
+        self.net.eval()
+
+
     def describe(self) -> dict:
         """Everything that defines this generator before training (enters content keys)."""
         return {"method_id": self.method_id, "config": self.config.model_dump(mode="json"),

@@ -284,12 +284,9 @@ class MANN(Generator):
         self.features = MANNFeatures(self.config, skeleton, self.n_classes)
         self._build(derive_seed(0, self.method_id, "construct"))
 
-    def _build(self, init_seed: int) -> None:
+    def _make_network(self) -> MANNNet:
         f = self.features
-        with torch.random.fork_rng(devices=[]):
-            torch.manual_seed(init_seed)
-            self.net = MANNNet(self.config, f.n_in, f.n_out, f.gating_index)
-        self.net.eval()
+        return MANNNet(self.config, f.n_in, f.n_out, f.gating_index)
 
     @property
     def network(self) -> MANNNet:

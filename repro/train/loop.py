@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,6 +28,7 @@ from typing import Any, Callable, Iterable
 
 from repro.keys import canonical_json, content_key
 from repro.seeding import derive_seed, torch_generator
+from repro.store.atomic import atomic_write_bytes
 
 CHECKPOINT = "checkpoint.pt"
 CONFIG = "config.json"
@@ -43,17 +43,13 @@ class TrainResult:
 
 
 def _atomic_torch_save(obj: Any, path: Path) -> None:
+    import io
+
     import torch
 
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
-
-
-def _atomic_write_bytes(data: bytes, path: Path) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
+    buf = io.BytesIO()
+    torch.save(obj, buf)
+    atomic_write_bytes(path, buf.getvalue())
 
 
 def train(
@@ -102,8 +98,8 @@ def train(
                 start_epoch = int(state["epoch"]) + 1
                 resumed_from = start_epoch
                 history = json.loads(state["history"])
-        _atomic_write_bytes(canonical_json({"key": cfg_key}), cfg_path)
-        _atomic_write_bytes(canonical_json(config), ckpt_dir / "config.full.json")
+        atomic_write_bytes(cfg_path, canonical_json({"key": cfg_key}))
+        atomic_write_bytes(ckpt_dir / "config.full.json", canonical_json(config))
 
     for epoch in range(start_epoch, epochs):
         torch.manual_seed(derive_seed(seed, "epoch", epoch))
