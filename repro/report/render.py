@@ -76,16 +76,18 @@ def render(view: TableView, fmt: str = "term") -> str:
 def _render_term(view: TableView) -> str:
     from rich.console import Console
     from rich.table import Table
+    from rich.text import Text
 
-    table = Table(title=_title(view), show_lines=False, title_justify="left")
+    table = Table(title=Text(_title(view)), show_lines=False, title_justify="left")
     table.add_column("row")
     table.add_column("")
     for col in view.columns:
         unit = f" ({col.unit})" if col.unit else ""
         table.add_column(f"{col.label}{_arrow(col.direction, col.label)}{unit}", overflow="fold")
-    for row in view.rows:
-        table.add_row(row.label, "paper", *[paper_text(row.cells.get(c.id, CellView())) for c in view.columns])
-        ours = [ours_text(row.cells.get(c.id, CellView(status=row.status))) for c in view.columns]
+    for row in view.rows:  # Text(): cell contents are never read as rich markup
+        table.add_row(Text(row.label), "paper",
+                      *[Text(paper_text(row.cells.get(c.id, CellView()))) for c in view.columns])
+        ours = [Text(ours_text(row.cells.get(c.id, CellView(status=row.status)))) for c in view.columns]
         table.add_row("", "ours", *ours, end_section=True)
     buf = io.StringIO()
     console = Console(file=buf, width=max(100, 26 * (len(view.columns) + 1)), force_terminal=False,
@@ -94,9 +96,9 @@ def _render_term(view: TableView) -> str:
     if view.claims:
         console.print("Claims:")
         for cl in view.claims:
-            console.print(f"  {_claim_line(cl)}", highlight=False)
+            console.print(f"  {_claim_line(cl)}", highlight=False, markup=False)
     for line in view.footer:
-        console.print(line, highlight=False)
+        console.print(line, highlight=False, markup=False)
     return buf.getvalue()
 
 
