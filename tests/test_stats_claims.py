@@ -79,7 +79,6 @@ def test_calibration_fast():
     assert _calibration(30, 2.0, seed=1) >= 0.95 * 30
 
 
-@pytest.mark.slow
-def test_calibration_full():
+def test_calibration_full():  # the 200 + 200 tables, in `make test` (~15-40 s)
     assert _calibration(200, 0.0, seed=10) <= _null_bound(200)
     assert _calibration(200, 2.0, seed=11) >= 0.95 * 200
