@@ -232,3 +232,18 @@ def test_every_spec_plans_and_renders(table, monkeypatch):
             assert cell.printed in md
     for fmt in FORMATS:
         assert render(view, fmt)
+
+
+def test_seeds_option_parses_and_replaces_replicates(tiny_tables):
+    from repro.engine.runner import plan_table
+    from repro.engine.tables import parse_seeds
+    from repro.errors import ConfigError
+
+    assert parse_seeds("0-2,7") == (0, 1, 2, 7)
+    with pytest.raises(ConfigError):
+        parse_seeds("1,1")
+    with pytest.raises(ConfigError):
+        parse_seeds("a-b")
+    entries = plan_table("marionette/table1", seeds=(5, 6))
+    measures = [e for e in entries if e["kind"] == "measure_real"]
+    assert len(measures) == 2

@@ -24,6 +24,7 @@ def register(sub) -> None:
     p.add_argument("table")
     _common(p)
     p.add_argument("--why", action="store_true", help="for a miss, say which part of the key changed")
+    p.add_argument("--seeds", default=None, help="replicate seeds, e.g. 0-9 or 0,3,7 (default: the scale's)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_plan)
 
@@ -33,6 +34,8 @@ def register(sub) -> None:
     p.add_argument("--jobs", type=int, default=1, help="jobs run at once (default 1)")
     p.add_argument("--force", nargs="?", const=True, default=None, metavar="KIND",
                    help="recompute everything, or only jobs of KIND (train, generate, measure, ...)")
+    p.add_argument("--seeds", default=None, help="replicate seeds, e.g. 0-9 or 0,3,7 (default: the "
+                   "scale's); the first is also the training seed")
     p.add_argument("--format", default="term", help="term | md | latex | html | json | csv")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_run)
@@ -87,7 +90,10 @@ def cmd_list(args) -> int:
 def cmd_plan(args) -> int:
     from repro.engine.runner import plan_table
 
-    entries = plan_table(args.table, scale=args.scale, dataset=args.dataset, why=args.why)
+    from repro.engine.tables import parse_seeds
+
+    entries = plan_table(args.table, scale=args.scale, dataset=args.dataset, why=args.why,
+                         seeds=parse_seeds(args.seeds) if args.seeds else None)
     if args.json:
         print(json.dumps(entries, indent=2))
         return 0
@@ -105,13 +111,15 @@ def cmd_plan(args) -> int:
 
 def cmd_run(args) -> int:
     from repro.engine.runner import run_table, table_view
+    from repro.engine.tables import parse_seeds
     from repro.report import render
 
     rc = 0
     for name in args.tables:
         plan, summary, run_id = run_table(name, scale=args.scale, dataset=args.dataset,
                                           jobs=args.jobs, force=args.force,
-                                          progress=not args.quiet and sys.stderr.isatty())
+                                          progress=not args.quiet and sys.stderr.isatty(),
+                                          seeds=parse_seeds(args.seeds) if args.seeds else None)
         counts = summary.get("counts", {})
         print(f"repro: {plan.spec.id}: run {run_id} "
               f"({', '.join(f'{v} {k}' for k, v in sorted(counts.items())) or 'nothing to compute'})",

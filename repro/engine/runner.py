@@ -99,14 +99,16 @@ def _gate(plan) -> None:
 
 
 def run_table(name: str, *, scale: str = "quick", dataset: str | None = None, jobs: int = 1,
-              force: Any = None, progress: bool = True) -> tuple[Any, dict, str]:
-    """Run one table; returns (plan, summary, run_id)."""
+              force: Any = None, progress: bool = True,
+              seeds: tuple[int, ...] | None = None) -> tuple[Any, dict, str]:
+    """Run one table; returns (plan, summary, run_id).  ``seeds`` replaces the profile's
+    replicate seeds (the first one is also the training seed)."""
     from repro.engine.tables import build_plan, collect_values, summarise
     from repro.store.runs import RunRecorder
 
     spec = _spec(name)
     sc = _scale(scale, dataset)
-    plan = build_plan(spec, sc, dataset)
+    plan = build_plan(spec, sc, dataset, seeds)
     rec = RunRecorder(table=spec.id, spec_version=spec.version, spec_hash=spec.spec_hash,
                       config=plan.config, scale=sc.name, dataset=plan.dataset)
     with rec:
@@ -207,13 +209,13 @@ def _before_run(status: str) -> str:
 
 
 def plan_table(name: str, *, scale: str = "quick", dataset: str | None = None, why: bool = False,
-               force: Any = None) -> list[dict]:
+               force: Any = None, seeds: tuple[int, ...] | None = None) -> list[dict]:
     """What a run would do: each job with its key, cached or not, and (``why``) what changed."""
     from repro.engine.plan import plan as plan_jobs
     from repro.engine.tables import build_plan
 
     spec = _spec(name)
-    plan = build_plan(spec, _scale(scale, dataset), dataset)
+    plan = build_plan(spec, _scale(scale, dataset), dataset, seeds)
     entries = plan_jobs(plan.jobs(), force=force, why=why)
     out = [{"job": e.job.name if hasattr(e.job, "name") else e.job.label, "kind": e.job.kind,
             "key": e.key[:12], "cached": e.cached, "why": getattr(e, "why", None)} for e in entries]

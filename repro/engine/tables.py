@@ -141,7 +141,23 @@ def _method_config(method: str, scale, overrides: dict) -> tuple[dict | None, st
     return cfg.model_dump(mode="json"), None
 
 
-def build_plan(spec, scale, dataset: str | None = None) -> TablePlan:
+def parse_seeds(text: str) -> tuple[int, ...]:
+    """``"0-4"`` → (0, 1, 2, 3, 4); ``"0,3,7"`` → (0, 3, 7) (``--seeds``)."""
+    from repro.errors import ConfigError
+
+    try:
+        out: list[int] = []
+        for part in text.split(","):
+            a, sep, b = part.strip().partition("-")
+            out.extend(range(int(a), int(b) + 1) if sep else [int(a)])
+    except ValueError:
+        raise ConfigError(f"--seeds {text!r}: give seeds as '0-4' or '0,3,7'") from None
+    if not out or len(set(out)) != len(out) or min(out) < 0:
+        raise ConfigError(f"--seeds {text!r}: seeds must be distinct non-negative integers")
+    return tuple(out)
+
+
+def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] | None = None) -> TablePlan:
     """Everything a run of ``spec`` at ``scale`` would do (no training; the data set is only
     opened, memory-mapped, for the fingerprint of the evaluator's training split)."""
     from repro.eval.protocols import get_protocol, is_implemented
@@ -150,7 +166,7 @@ def build_plan(spec, scale, dataset: str | None = None) -> TablePlan:
 
     dataset = dataset or scale.dataset_for(spec)
     fp, missing = _data_status(dataset)
-    seeds = scale.seeds_for(spec.protocol)
+    seeds = tuple(seeds) if seeds else scale.seeds_for(spec.protocol)
     bands = _bands(spec, scale)
     settings = resolve_settings(scale.name)
     clips = None
