@@ -35,7 +35,7 @@ ODMO := table1 table2 table3 table4 tableS1
 DATASET_FLAG := $(if $(DATASET),--dataset $(DATASET),)
 ALL_TABLES := $(addprefix marionette/,$(MARIONETTE)) $(addprefix multiact/,$(MULTIACT)) $(addprefix odmo/,$(ODMO))
 # Tables whose methods exist and that CI reruns at the quick scale against tables/baselines/quick.
-CI_TABLES ?= marionette/table1
+CI_TABLES ?= marionette/table1 marionette/table2 marionette/table4
 BASELINES := tables/baselines/$(SCALE)
 
 .PHONY: table1 table2 table3 table4 table5 tables ci-tables baselines \

@@ -184,7 +184,7 @@ def latest_run(table: str, scale: str | None = None, dataset: str | None = None)
 def table_view(name: str, *, scale: str = "quick", dataset: str | None = None, run: str | None = None):
     """The view of a table: from a run (the newest finished one by default) or, when there is
     none, the paper's values beside "not run" cells."""
-    from repro.engine.tables import build_plan, make_view
+    from repro.engine.tables import build_plan, make_view, unbuilt_columns
     from repro.store.runs import resolve_run
 
     spec = _spec(name)
@@ -198,7 +198,7 @@ def table_view(name: str, *, scale: str = "quick", dataset: str | None = None, r
     plan = build_plan(spec, sc, dataset)
     rows = {rp.row_id: {"status": _before_run(rp.status), "reason": rp.reason} for rp in plan.rows}
     return make_view(spec, rows, None, _footer(plan, _evaluators(plan, train=False, progress=False),
-                                               None), plan.dataset)
+                                               None), plan.dataset, unbuilt_columns(plan))
 
 
 def _before_run(status: str) -> str:

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from repro.engine.job import Job
-from repro.report.view import (DATA_UNAVAILABLE, NOT_IMPLEMENTED, NOT_REPORTED, NOT_RUN, OK,
+from repro.report.view import (DATA_UNAVAILABLE, NOT_IMPLEMENTED, NOT_RUN, OK,
                                CellView, ClaimView, ColumnView, RowView, TableView)
 
 STEPS = "repro.engine.steps"
@@ -287,7 +287,13 @@ def summarise(plan: TablePlan, values: list[dict]) -> dict:
         out_cells.setdefault(row_id, {})[col] = s.to_dict()
     claims = [_claim(spec, cl, cells) for cl in spec.claims]
     return {"schema": SUMMARY_SCHEMA, "table": spec.id, "cells": out_cells, "claims": claims,
-            "rows": {rp.row_id: {"status": rp.status, "reason": rp.reason} for rp in plan.rows}}
+            "rows": {rp.row_id: {"status": rp.status, "reason": rp.reason} for rp in plan.rows},
+            "unbuilt_columns": unbuilt_columns(plan)}
+
+
+def unbuilt_columns(plan: TablePlan) -> dict[str, str]:
+    """Columns whose protocol is not built yet, with the reason."""
+    return {c: b.reason or NOT_IMPLEMENTED for b in plan.bands if not b.implemented for c in b.columns}
 
 
 def _claim(spec, cl, cells) -> dict:
@@ -371,11 +377,13 @@ def _claim_text(spec, cl) -> str:
 
 
 def make_view(spec, plan_rows: dict[str, dict], summary: dict | None, footer: list[str],
-              dataset: str | None) -> TableView:
-    """The reported-vs-reproduced view from a spec and (optionally) a run's summary."""
+              dataset: str | None, unbuilt: dict[str, str] | None = None) -> TableView:
+    """The reported-vs-reproduced view from a spec and (optionally) a run's summary;
+    ``unbuilt`` names the columns whose protocol is not built (they read "not implemented")."""
     from repro.specs import names
 
     cells = (summary or {}).get("cells", {})
+    unbuilt = (summary or {}).get("unbuilt_columns", {}) if unbuilt is None else unbuilt
     cols = []
     for c in spec.columns:
         g = spec.group_of(c.id)
@@ -396,9 +404,12 @@ def make_view(spec, plan_rows: dict[str, dict], summary: dict | None, footer: li
                                           tuple(ci) if ci and None not in ci else None,
                                           got["n"], OK)
             else:
-                cst = st if st != OK else (NOT_REPORTED if summary else NOT_RUN)
-                if st == OK and summary:
-                    cst = "not measured"
+                if st != OK and st != NOT_RUN:
+                    cst = st
+                elif c.id in unbuilt:
+                    cst = NOT_IMPLEMENTED
+                else:
+                    cst = "not measured" if summary else NOT_RUN
                 rv.cells[c.id] = CellView(printed, status=cst)
         rows.append(rv)
     claims = []
