@@ -70,16 +70,16 @@ def _evaluators(plan, *, train: bool, progress: bool) -> dict[str, str]:
             continue
         if progress:
             print(f"repro: evaluator {e['kind']} on {e['dataset']} ({e['scale']})…", file=sys.stderr)
-        ev = evaluator_for({"dataset": plan.dataset, "protocol": b.protocol,
-                            "protocol_params": b.params, "evaluator": e})
+        ev = evaluator_for(b.step_config(plan.dataset, with_evaluator=True))
         out[b.evaluator_key] = ev.describe()
     return out
 
 
 def _gate(plan) -> None:
     """The real-data gate for every band that has a real row (evaluation issue, item 4)."""
-    from repro.engine.steps import _protocol, clipset, evaluator_clipset, evaluator_for
+    from repro.engine.steps import clipset, evaluator_clipset, evaluator_for
     from repro.eval import check_real_gate, evaluator_stats, real_rows
+    from repro.eval.protocols import get_protocol
 
     if not any(rp.method == "real" and rp.measures for rp in plan.rows):
         return
@@ -89,10 +89,8 @@ def _gate(plan) -> None:
             continue
         seen.add(b.evaluator_key)
         e = b.evaluator
-        cfg = {"dataset": plan.dataset, "protocol": b.protocol, "protocol_params": b.params,
-               "evaluator": e}
-        ev = evaluator_for(cfg)
-        clips = evaluator_clipset(_protocol(cfg), clipset(plan.dataset))
+        ev = evaluator_for(b.step_config(plan.dataset, with_evaluator=True))
+        clips = evaluator_clipset(get_protocol(b.protocol, b.params), clipset(plan.dataset))
         rows = real_rows(e["dataset"], e["scale"], seed=0, kind=e["kind"], evaluator=ev,
                          clipset=clips)
         check_real_gate(rows, evaluator_stats(ev))

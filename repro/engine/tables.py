@@ -58,6 +58,15 @@ class Band:
     evaluator_key: str | None = None
     version: int | None = None  # the protocol implementation's version
 
+    def step_config(self, dataset: str, *, with_evaluator: bool = False) -> dict[str, Any]:
+        """What every step of this band reads: data set and protocol (+ the evaluator for the
+        steps that measure; train/generate keys must not depend on the evaluator)."""
+        cfg = {"dataset": dataset, "protocol": self.protocol, "protocol_params": self.params,
+               "protocol_version": self.version}
+        if with_evaluator:
+            cfg["evaluator"] = self.evaluator
+        return cfg
+
 
 @dataclass
 class RowPlan:
@@ -205,8 +214,7 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
         for bi, b in enumerate(bands):
             if not b.implemented:
                 continue
-            base = {"dataset": dataset, "protocol": b.protocol, "protocol_params": b.params,
-                    "protocol_version": b.version}
+            base = b.step_config(dataset)
             fps = {"dataset": fp}
             if row.method == "real":
                 rp.measures[bi] = [
