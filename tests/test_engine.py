@@ -314,6 +314,34 @@ def test_failing_job_fails_the_run_and_keeps_finished_work(jobs_module, jobs):
     assert Store().has(prep.key()) and not Store().has(bad.key())
 
 
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_keep_going_cancels_only_the_failed_jobs_dependents(jobs_module, jobs):
+    good = jobs_module.graph(seeds=(0, 1))
+    prep = good[0].inputs[0].inputs[0]
+    bad = Job("broken", f"{MOD}:fail", {}, (prep,), seed=0, label="broken")
+    after = Job("evaluate", f"{MOD}:evaluate", {}, (bad,), seed=0, label="after")
+    report = execute([after, *good], jobs=jobs, keep_going=True)
+    status = {r.job.label: r.status for r in report.results}
+    assert status["broken"] == "failed" and status["after"] == "cancelled"
+    assert {status[t.label] for t in good} == {COMPUTED}
+    assert "always fails" in report.failure_of([after]).error
+    assert report.failure_of(good) is None
+    assert Store().has(good[1].key()) and not Store().has(bad.key())
+
+
+def test_keep_going_still_stops_on_a_user_error(jobs_module, monkeypatch):
+    from repro.errors import SpecError
+
+    def user_error(ctx):
+        raise SpecError("tables/x.toml: typo")
+
+    monkeypatch.setattr(jobs_module, "fail", user_error)
+    prep = jobs_module.graph()[0].inputs[0].inputs[0]
+    bad = Job("broken", f"{MOD}:fail", {}, (prep,), seed=0, label="broken")
+    with pytest.raises(SpecError):
+        execute([bad, *jobs_module.graph(seeds=(3,))], keep_going=True)
+
+
 def test_ctrl_c_keeps_checkpoint_marks_interrupted_and_next_run_resumes(jobs_module, monkeypatch):
     targets = jobs_module.graph(steps=6)
     monkeypatch.setenv("REPRO_TEST_INTERRUPT_AT", "3")

@@ -130,6 +130,26 @@ def test_table_runs_end_to_end_then_all_hits(tiny_tables, _repro_home):
     assert second <= 0.25 * first, (first, second)
 
 
+def test_a_failing_method_fails_its_row_and_the_others_go_on(tiny_tables, _repro_home,
+                                                             monkeypatch, capsys):
+    from repro.engine.runner import run_table
+    from repro.models.nearest_clip import NearestClip
+
+    def broken_fit(self, *a, **k):
+        raise FloatingPointError("loss is nan")
+
+    monkeypatch.setattr(NearestClip, "fit", broken_fit)
+    _, summary, run_id = run_table("marionette/table1", scale="quick", progress=False)
+    assert set(summary["cells"]) == {"real"}  # the Real row is measured all the same
+    assert summary["rows"]["nearest_clip"]["status"] == "failed"
+    assert "loss is nan" in summary["rows"]["nearest_clip"]["reason"]
+    assert "row nearest_clip failed" in capsys.readouterr().err
+    jobs = json.loads((_repro_home / "runs" / run_id / "run.json").read_text())["jobs"]
+    assert {j["status"] for j in jobs if j["label"].startswith("nearest_clip/")} == \
+        {"failed", "cancelled"}
+    assert summary["counts"]["failed"] == 1
+
+
 def test_corrupt_object_is_detected_and_rebuilt(tiny_tables, _repro_home):
     from repro.engine.runner import run_table
 

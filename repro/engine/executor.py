@@ -16,6 +16,13 @@ jobs in threads would perturb each other's random streams and thread settings; `
 ``fork``) because forking a process that has started torch/OpenMP threads can deadlock.  Each
 worker gets ``threads_per_job`` torch threads (default ``cpu_count // N``).
 
+Failures: by default a failing job stops the graph (the jobs not yet started are CANCELLED and
+its exception is re-raised).  With ``keep_going=True`` (what a table run uses, so that one
+broken method does not stop the other rows) only the failing job's dependents are CANCELLED,
+every independent job still runs, and :func:`execute` returns; the report's
+:meth:`ExecutionReport.failure_of` says which failure blocked a target.  A user error
+(:class:`~repro.errors.ReproError`) and an interrupt stop the graph either way.
+
 Interrupts: Ctrl-C (SIGINT) or ``kill`` (SIGTERM, turned into ``KeyboardInterrupt`` while the
 graph runs) stops the graph; running jobs are interrupted, their temp output is removed, their
 scratch folder (checkpoints) is kept, finished jobs stay published, the run record is marked
@@ -41,6 +48,7 @@ from pathlib import Path
 from typing import Any
 
 from repro.engine import plan as planmod
+from repro.errors import ReproError
 from repro.engine.job import Job, JobContext, topo_order
 from repro.store.objects import Store, StoredObject
 
@@ -90,6 +98,15 @@ class ExecutionReport:
         if r.object is None:
             raise KeyError(f"job {job.name} has no loaded object (status {r.status})")
         return r.object
+
+    def failure_of(self, targets: Iterable[Job]) -> JobResult | None:
+        """The first FAILED job among ``targets`` and everything they depend on (None if the
+        sub-graph holds no failure)."""
+        keys = {j.key() for j in topo_order(list(targets))}
+        for r in self.results:
+            if r.key in keys and r.status == FAILED:
+                return r
+        return None
 
     @property
     def counts(self) -> dict[str, int]:
@@ -240,13 +257,15 @@ def _sigterm_as_interrupt(flag: dict):
 # ---------------------------------------------------------------------- the graph
 def execute(targets: Iterable[Job], *, store: Store | None = None, jobs: int = 1,
             force: bool | str | Iterable[str] | None = None, hook: ProgressHook | None = None,
-            recorder=None, threads_per_job: int | None = None) -> ExecutionReport:
+            recorder=None, threads_per_job: int | None = None,
+            keep_going: bool = False) -> ExecutionReport:
     """Run the graph reaching ``targets`` and return every job's (key, status, seconds, object).
 
     ``force``: ``True`` recomputes everything, a kind/label (or several) recomputes those.
     ``recorder``: a :class:`~repro.store.runs.RunRecorder`; it gets every job's record (keys
     read and written) and is marked INTERRUPTED or FAILED when the graph stops early.
-    Re-raises ``KeyboardInterrupt`` and a failing job's exception (with a note naming the job).
+    Re-raises ``KeyboardInterrupt`` and a failing job's exception (with a note naming the job),
+    unless ``keep_going``: then a failing job only cancels its dependents (module docstring).
     """
     store = store or Store()
     hook = hook or ProgressHook()
@@ -284,10 +303,11 @@ def execute(targets: Iterable[Job], *, store: Store | None = None, jobs: int = 1
     try:
         with _sigterm_as_interrupt(flag):
             if jobs <= 1 or len(to_run) <= 1:
-                _run_inline(to_run, dec, results, store, finish, hook, threads_per_job)
+                _run_inline(to_run, dec, results, store, finish, hook, threads_per_job,
+                            keep_going)
             else:
                 _run_pool(to_run, dec, results, by_key, store, finish, hook, jobs,
-                          threads_per_job, flag)
+                          threads_per_job, flag, keep_going)
     except KeyboardInterrupt:
         report.interrupted = True
         for j in to_run:
@@ -328,9 +348,28 @@ def _inputs(job: Job, results: dict[str, JobResult]) -> tuple[StoredObject, ...]
     return tuple(objs)
 
 
-def _run_inline(to_run, dec, results, store, finish, hook, threads) -> None:
+def _tolerated(e: BaseException, keep_going: bool) -> bool:
+    """Whether a job's exception only fails that job (and its dependents)."""
+    return keep_going and isinstance(e, Exception) and not isinstance(e, ReproError)
+
+
+def _blocked(job: Job, results: dict[str, JobResult]) -> JobResult | None:
+    """The CANCELLED result of ``job`` when one of its inputs failed or was cancelled."""
+    for i in job.inputs:
+        r = results.get(i.key())
+        if r is not None and r.status in (FAILED, CANCELLED):
+            why = r.error if r.status == CANCELLED else f"input {i.name} failed"
+            return JobResult(job, job.key(), CANCELLED, error=why)
+    return None
+
+
+def _run_inline(to_run, dec, results, store, finish, hook, threads, keep_going=False) -> None:
     for job in to_run:
         k = job.key()
+        blocked = _blocked(job, results)
+        if blocked is not None:
+            finish(blocked)
+            continue
         inputs = _inputs(job, results)
         hook.job_started(job, k)
         t0 = time.perf_counter()
@@ -348,6 +387,10 @@ def _run_inline(to_run, dec, results, store, finish, hook, threads) -> None:
             finish(JobResult(job, k, FAILED, time.perf_counter() - t0,
                              error=f"{type(e).__name__}: {e}"))
             _annotate(e, job, k)
+            if _tolerated(e, keep_going):
+                log.info("job %s failed (%s: %s); its dependents are cancelled",
+                            job.name, type(e).__name__, e)
+                continue
             raise
         finish(JobResult(job, k, status, time.perf_counter() - t0, obj))
 
@@ -360,7 +403,8 @@ def _signal_all(pids: Iterable[int], sig: int) -> None:
             pass
 
 
-def _run_pool(to_run, dec, results, by_key, store, finish, hook, jobs, threads, flag) -> None:
+def _run_pool(to_run, dec, results, by_key, store, finish, hook, jobs, threads, flag,
+              keep_going=False) -> None:
     ctx = multiprocessing.get_context("spawn")
     q = ctx.Queue()
     stop_workers = ctx.Event()
@@ -424,7 +468,12 @@ def _run_pool(to_run, dec, results, by_key, store, finish, hook, jobs, threads, 
                     finish(JobResult(job, k, FAILED, time.perf_counter() - t0,
                                      error=f"{type(e).__name__}: {e}"))
                     _annotate(e, job, k)
-                    failure = failure or e
+                    if _tolerated(e, keep_going):
+                        log.info("job %s failed (%s: %s); its dependents are cancelled",
+                                    job.name, type(e).__name__, e)
+                        _cancel_dependents(k, dependents, results, finish)
+                    else:
+                        failure = failure or e
                     continue
                 finish(JobResult(job, k, status, seconds, obj))
                 for d in dependents.get(k, []):
@@ -444,6 +493,18 @@ def _run_pool(to_run, dec, results, by_key, store, finish, hook, jobs, threads, 
         stop.set()
         drainer.join(timeout=2.0)
         q.close()
+
+
+def _cancel_dependents(key: str, dependents: dict[str, list[Job]], results, finish) -> None:
+    """Record every job downstream of the failed ``key`` as CANCELLED (they never become ready)."""
+    stack = list(dependents.get(key, []))
+    while stack:
+        d = stack.pop()
+        if d.key() in results:
+            continue
+        blocked = _blocked(d, results)
+        finish(blocked or JobResult(d, d.key(), CANCELLED, error="an input failed"))
+        stack.extend(dependents.get(d.key(), []))
 
 
 def _stop_workers(pool, running, pids, results, finish, flag) -> None:

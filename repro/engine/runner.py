@@ -113,51 +113,60 @@ def run_table(name: str, *, scale: str = "quick", dataset: str | None = None, jo
         evaluators = _evaluators(plan, train=bool(plan.jobs()), progress=progress)
         if plan.jobs():
             _gate(plan)
-        reports = _execute_rows(plan, jobs=jobs, force=force, progress=progress, recorder=rec)
+        reports, counts = _execute_rows(plan, jobs=jobs, force=force, progress=progress,
+                                        recorder=rec)
         values = collect_values(plan, reports)
         rec.add_values(values)
         summary = summarise(plan, values)
         summary["evaluators"] = evaluators
         summary["footer"] = _footer(plan, evaluators, rec.run_id)
-        counts: dict[str, int] = {}
-        for r in reports.values():
-            for k, v in r.counts.items():
-                counts[k] = counts.get(k, 0) + v
         summary["counts"] = counts
         rec.write_summary(summary)
     return plan, summary, rec.run_id
 
 
-def _execute_rows(plan, *, jobs: int, force: Any, progress: bool, recorder) -> dict[str, Any]:
-    """Execute each row's sub-graph; a row whose job fails is marked FAILED with the error and
-    the other rows go on (a user error, :class:`ReproError`, and Ctrl-C still stop the run)."""
+def _execute_rows(plan, *, jobs: int, force: Any, progress: bool,
+                  recorder) -> tuple[dict[str, Any], dict[str, int]]:
+    """Execute every row's sub-graph as one graph, so ``--jobs N`` overlaps the rows (five
+    trainings of a table run N at a time, not one after another).  A job that fails cancels
+    only what depends on it (``keep_going``): each row it reaches is marked FAILED with the
+    error and the other rows go on; a user error (:class:`ReproError`) and Ctrl-C still stop
+    the run.  Returns (row id -> the graph's report, job counts by status)."""
     from repro.engine.executor import execute
     from repro.report.view import FAILED
 
+    targets: dict[str, Any] = {}
+    for rp in plan.rows:
+        for js in rp.measures.values():
+            for j in js:
+                targets.setdefault(j.key(), j)
+    if not targets:
+        return {}, {}
+    hook = None
+    if progress:
+        from repro.engine.progress import RichProgressHook
+
+        hook = RichProgressHook()
+    if hook is not None:
+        with hook:
+            report = execute(list(targets.values()), jobs=jobs, force=force, hook=hook,
+                             recorder=recorder, keep_going=True)
+    else:
+        report = execute(list(targets.values()), jobs=jobs, force=force, recorder=recorder,
+                         keep_going=True)
     reports: dict[str, Any] = {}
     for rp in plan.rows:
-        targets = [j for js in rp.measures.values() for j in js]
-        if not targets:
+        row_targets = [j for js in rp.measures.values() for j in js]
+        if not row_targets:
             continue
-        hook = None
-        if progress:
-            from repro.engine.progress import RichProgressHook
-
-            hook = RichProgressHook()
-        try:
-            if hook is not None:
-                with hook:
-                    reports[rp.row_id] = execute(targets, jobs=jobs, force=force, hook=hook,
-                                                 recorder=recorder)
-            else:
-                reports[rp.row_id] = execute(targets, jobs=jobs, force=force, recorder=recorder)
-        except (KeyboardInterrupt, ReproError):
-            raise
-        except Exception as e:  # a bug or a numerical failure in one method: say it, go on
-            rp.status, rp.reason = FAILED, f"{type(e).__name__}: {e}"
+        failed = report.failure_of(row_targets)
+        if failed is not None:  # a bug or a numerical failure in one method: say it, go on
+            rp.status, rp.reason = FAILED, f"{failed.job.name}: {failed.error}"
             rp.measures = {}
             print(f"repro: row {rp.row_id} failed: {rp.reason}", file=sys.stderr)
-    return reports
+            continue
+        reports[rp.row_id] = report
+    return reports, report.counts
 
 
 def latest_run(table: str, scale: str | None = None, dataset: str | None = None) -> Path | None:
