@@ -89,7 +89,7 @@ def _repro(*args, env_home, tables, check=True):
     return out
 
 
-def test_table_runs_end_to_end_then_all_hits(tiny_tables, _repro_home):
+def test_table_runs_end_to_end_then_all_hits(tiny_tables, _repro_home, monkeypatch):
     from repro.engine.runner import run_table, table_view
     from repro.report import render
 
@@ -121,7 +121,14 @@ def test_table_runs_end_to_end_then_all_hits(tiny_tables, _repro_home):
     assert "STAND-IN" in text and "Real Test Data" in text
     assert "not implemented" not in text  # the reduced spec has only built rows
 
-    # a second identical run is all cache hits and much faster
+    # a second identical run is all cache hits and much faster; the real rows the gate
+    # checks are stored too (computing them again would fail here)
+    import repro.eval
+
+    def no_recompute(*a, **k):
+        raise AssertionError("the gate's real rows were recomputed")
+
+    monkeypatch.setattr(repro.eval, "real_rows", no_recompute)
     t0 = time.perf_counter()
     _, summary2, run2 = run_table("marionette/table1", scale="quick", progress=False)
     second = time.perf_counter() - t0

@@ -76,9 +76,12 @@ def _evaluators(plan, *, train: bool, progress: bool) -> dict[str, str]:
 
 
 def _gate(plan) -> None:
-    """The real-data gate for every band that has a real row (evaluation issue, item 4)."""
+    """The real-data gate for every band that has a real row (evaluation issue, item 4).
+
+    The real rows the gate reads are stored by content (:func:`_real_rows`), so a rerun
+    checks the gate without recomputing them; the check itself always runs."""
     from repro.engine.steps import clipset, evaluator_clipset, evaluator_for
-    from repro.eval import check_real_gate, evaluator_stats, real_rows
+    from repro.eval import check_real_gate, evaluator_stats
     from repro.eval.protocols import get_protocol
 
     if not any(rp.method == "real" and rp.measures for rp in plan.rows):
@@ -88,12 +91,34 @@ def _gate(plan) -> None:
         if b.evaluator is None or b.evaluator_key in seen:
             continue
         seen.add(b.evaluator_key)
-        e = b.evaluator
         ev = evaluator_for(b.step_config(plan.dataset, with_evaluator=True))
         clips = evaluator_clipset(get_protocol(b.protocol, b.params), clipset(plan.dataset))
+        rows = _real_rows(b.evaluator, b.evaluator_key, ev, clips)
+        check_real_gate(rows, evaluator_stats(ev))
+
+
+def _real_rows(e: dict, evaluator_key: str, ev, clips) -> dict:
+    """:func:`repro.eval.real_rows` of one evaluator, stored under a key made of everything
+    they depend on: the evaluator's store key, the clips, the evaluator settings (sample
+    counts), the profile's bootstrap resamples and the source of ``repro.eval.real``."""
+    from repro.engine.source_hash import source_hash
+    from repro.eval import real_rows
+    from repro.eval.real import _bootstrap_resamples
+    from repro.keys import content_key
+    from repro.store.objects import Store
+
+    key = content_key({"schema": 1, "object": "real_rows", "evaluator": evaluator_key,
+                       "clips": clips.fingerprint, "kind": e["kind"], "dataset": e["dataset"],
+                       "scale": e["scale"], "settings": ev.settings.model_dump(mode="json"),
+                       "bootstrap_resamples": _bootstrap_resamples(e["scale"]),
+                       "source": source_hash("repro.eval.real")})
+
+    def compute(out: Path) -> None:
         rows = real_rows(e["dataset"], e["scale"], seed=0, kind=e["kind"], evaluator=ev,
                          clipset=clips)
-        check_real_gate(rows, evaluator_stats(ev))
+        (out / "real_rows.json").write_text(json.dumps(rows, sort_keys=True))
+
+    return Store().compute(key, "real_rows", compute).read_json("real_rows.json")
 
 
 def run_table(name: str, *, scale: str = "quick", dataset: str | None = None, jobs: int = 1,
