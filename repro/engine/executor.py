@@ -348,9 +348,16 @@ def _inputs(job: Job, results: dict[str, JobResult]) -> tuple[StoredObject, ...]
     return tuple(objs)
 
 
-def _tolerated(e: BaseException, keep_going: bool) -> bool:
-    """Whether a job's exception only fails that job (and its dependents)."""
-    return keep_going and isinstance(e, Exception) and not isinstance(e, ReproError)
+def _failed(job: Job, key: str, t0: float, e: BaseException, finish, keep_going: bool) -> bool:
+    """Record ``job`` as FAILED with ``e``; True when the graph goes on without it (only with
+    ``keep_going``, and never for a user error), False when ``e`` must stop the graph."""
+    finish(JobResult(job, key, FAILED, time.perf_counter() - t0, error=f"{type(e).__name__}: {e}"))
+    _annotate(e, job, key)
+    tolerated = keep_going and isinstance(e, Exception) and not isinstance(e, ReproError)
+    if tolerated:
+        log.info("job %s failed (%s: %s); its dependents are cancelled",
+                 job.name, type(e).__name__, e)
+    return tolerated
 
 
 def _blocked(job: Job, results: dict[str, JobResult]) -> JobResult | None:
@@ -384,12 +391,7 @@ def _run_inline(to_run, dec, results, store, finish, hook, threads, keep_going=F
             finish(JobResult(job, k, INTERRUPTED, time.perf_counter() - t0))
             raise
         except BaseException as e:
-            finish(JobResult(job, k, FAILED, time.perf_counter() - t0,
-                             error=f"{type(e).__name__}: {e}"))
-            _annotate(e, job, k)
-            if _tolerated(e, keep_going):
-                log.info("job %s failed (%s: %s); its dependents are cancelled",
-                            job.name, type(e).__name__, e)
+            if _failed(job, k, t0, e, finish, keep_going):
                 continue
             raise
         finish(JobResult(job, k, status, time.perf_counter() - t0, obj))
@@ -465,12 +467,7 @@ def _run_pool(to_run, dec, results, by_key, store, finish, hook, jobs, threads, 
                     finish(JobResult(job, k, INTERRUPTED, time.perf_counter() - t0))
                     raise
                 except BaseException as e:
-                    finish(JobResult(job, k, FAILED, time.perf_counter() - t0,
-                                     error=f"{type(e).__name__}: {e}"))
-                    _annotate(e, job, k)
-                    if _tolerated(e, keep_going):
-                        log.info("job %s failed (%s: %s); its dependents are cancelled",
-                                    job.name, type(e).__name__, e)
+                    if _failed(job, k, t0, e, finish, keep_going):
                         _cancel_dependents(k, dependents, results, finish)
                     else:
                         failure = failure or e
