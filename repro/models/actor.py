@@ -50,7 +50,7 @@ import torch.nn.functional as F
 from pydantic import model_validator
 from torch import nn
 
-from repro.models.base import Generator, GeneratorConfig, epoch_batches, register
+from repro.models.base import Generator, GeneratorConfig, register
 from repro.models.baseline_io import (check_items, item_noise, length_mask, pack_poses,
                                       pose_dim, pose_joints, to_generated)
 from repro.models.items import ActionItems, GeneratedItems
@@ -186,24 +186,13 @@ class ACTOR(Generator):
     def fit(self, train_items: ActionItems, *, seed: int, ckpt_dir: str | Path | None = None,
             on_epoch: Callable[[int, dict[str, float]], None] | None = None):
         """AdamW (lr 1e-4), batch 20, through the one training loop; weights from ``seed``."""
-        from repro.train.loop import train
-
         check_items(self, train_items)
         cfg = self.config
         self._build(derive_seed(seed, self.method_id, "init"))
         data = self._tensors(train_items)
-        n = len(train_items)
-
-        def batches(epoch, gen):
-            for idx in epoch_batches(n, cfg.batch_size, gen):
-                yield self._crop(data, idx)
-
         opt = torch.optim.AdamW(self.net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-        result = train(self.net, opt, batches=batches, step=self.training_step,
-                       epochs=cfg.epochs, seed=seed, config=self.train_config(train_items, seed),
-                       ckpt_dir=ckpt_dir, on_epoch=on_epoch)
-        self.net.eval()
-        return result
+        return self._fit_batches(train_items, data, opt, seed=seed, ckpt_dir=ckpt_dir,
+                                 on_epoch=on_epoch)
 
     # -- inference -----------------------------------------------------------------------------
     @torch.no_grad()

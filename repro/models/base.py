@@ -167,6 +167,26 @@ class Generator(abc.ABC):
             self.net = self._make_network()
         self.net.eval()
 
+    def _fit_batches(self, train_items, data: dict, optimizer, *, seed: int, ckpt_dir,
+                     on_epoch, **train_kwargs):
+        """The tail every item-batched ``fit`` shares: shuffled batches of ``config.batch_size``
+        items (``self._crop(data, idx)`` each), ``self.training_step`` through the one
+        training loop (:func:`repro.train.loop.train`, resumable from ``ckpt_dir``), then
+        eval mode.  ``train_kwargs`` go to the loop (e.g. ``grad_clip``)."""
+        from repro.train.loop import train
+
+        n, batch_size = len(train_items), self.config.batch_size
+
+        def batches(epoch, gen):
+            for idx in epoch_batches(n, batch_size, gen):
+                yield self._crop(data, idx)
+
+        result = train(self.net, optimizer, batches=batches, step=self.training_step,
+                       epochs=self.config.epochs, seed=seed,
+                       config=self.train_config(train_items, seed), ckpt_dir=ckpt_dir,
+                       on_epoch=on_epoch, **train_kwargs)
+        self.net.eval()
+        return result
 
     def describe(self) -> dict:
         """Everything that defines this generator before training (enters content keys)."""

@@ -51,7 +51,7 @@ from pydantic import model_validator
 from torch import nn
 
 from repro.errors import ConfigError, DataError
-from repro.models.base import Generator, GeneratorConfig, epoch_batches, register
+from repro.models.base import Generator, GeneratorConfig, register
 from repro.models.items import ActionItems, GeneratedItems, pad_last, local_joints
 from repro.models.layers import TransformerDecoder, TransformerEncoder, sinusoidal_encoding
 from repro.motion.motion import Motion
@@ -448,28 +448,17 @@ class MarioNet(Generator):
             on_epoch: Callable[[int, dict[str, float]], None] | None = None):
         """Adam (lr 1e-4), batch 30, 1,000 epochs at paper scale (supp. Sec. 3), through the one
         training loop; weights are initialised from ``seed``."""
-        from repro.train.loop import train
-
         self._check_items(train_items)
         cfg = self.config
         self._build(derive_seed(seed, self.method_id, "init"))
         data = self._tensors(train_items, with_targets=True)
-        n = len(train_items)
         if cfg.standardize_poses:
             mean, std = pose_statistics(data)
             self.net.pose_mean.copy_(mean)
             self.net.pose_std.copy_(std)
-
-        def batches(epoch, gen):
-            for idx in epoch_batches(n, cfg.batch_size, gen):
-                yield self._crop(data, idx)
-
         opt = torch.optim.Adam(self.net.parameters(), lr=cfg.lr)
-        result = train(self.net, opt, batches=batches, step=self.training_step, epochs=cfg.epochs,
-                       seed=seed, config=self.train_config(train_items, seed), ckpt_dir=ckpt_dir,
-                       grad_clip=cfg.grad_clip, on_epoch=on_epoch)
-        self.net.eval()
-        return result
+        return self._fit_batches(train_items, data, opt, seed=seed, ckpt_dir=ckpt_dir,
+                                 on_epoch=on_epoch, grad_clip=cfg.grad_clip)
 
     # -- inference -------------------------------------------------------------------------------
     def _finish(self, items: ActionItems, poses: torch.Tensor) -> GeneratedItems:
