@@ -274,3 +274,13 @@ def test_seeds_option_parses_and_replaces_replicates(tiny_tables):
     entries = plan_table("marionette/table1", seeds=(5, 6))
     measures = [e for e in entries if e["kind"] == "measure_real"]
     assert len(measures) == 2
+
+
+def test_run_without_its_data_prints_the_paper_then_exits_2(tiny_tables, _repro_home):
+    out = _repro("run", "marionette/table1", "--scale", "medium", "--quiet",
+                 env_home=_repro_home, tables=tiny_tables, check=False)
+    assert out.returncode == 2, out.stderr
+    errors = [ln for ln in out.stderr.splitlines() if ln.startswith("repro: error:")]
+    assert len(errors) == 1 and "data set 'bandai2'" in errors[0]
+    assert "repro data prepare bandai2" in errors[0] and "Traceback" not in out.stderr
+    assert "data unavailable" in out.stdout and "Real Test Data" in out.stdout

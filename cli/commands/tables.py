@@ -126,6 +126,11 @@ def cmd_run(args) -> int:
               file=sys.stderr)
         view = table_view(name, scale=args.scale, dataset=args.dataset, run=run_id)
         sys.stdout.write(render(view, args.format))
+        if plan.data_missing:  # the table still prints (the paper's values), then one line
+            print(f"repro: error: {plan.spec.id}: data set {plan.dataset!r}: {plan.data_missing}",
+                  file=sys.stderr)
+            rc = 2
+            continue
         failed = [r for r, st in summary.get("rows", {}).items() if st.get("status") == "failed"]
         if failed:
             print(f"repro: {plan.spec.id}: rows failed: {', '.join(failed)}", file=sys.stderr)
