@@ -1,0 +1,66 @@
+"""The committed results (docs/results.md): the medium-scale run records under
+docs/results/medium/, the baselines made from them (tables/baselines/medium/) and the tables the
+page prints all agree, so the page cannot drift from the records nor the records be edited."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from repro.engine.baselines import compare, load_baseline, make_baseline
+from repro.paths import repo_root
+
+RESULTS = repo_root() / "docs" / "results"
+RUNS = sorted(p for p in (RESULTS / "medium").iterdir() if (p / "summary.json").is_file())
+
+
+def _run(path: Path) -> tuple[dict, dict]:
+    return (json.loads((path / "run.json").read_text()),
+            json.loads((path / "summary.json").read_text()))
+
+
+def test_there_are_medium_records_for_the_built_tables():
+    tables = {_run(p)[0]["table"] for p in RUNS}
+    assert tables == {"marionette/table1", "marionette/table2", "marionette/table4"}
+
+
+@pytest.mark.parametrize("path", RUNS, ids=[p.name for p in RUNS])
+def test_record_matches_its_baseline_and_its_values(path):
+    rj, summary = _run(path)
+    assert rj["status"] == "FINISHED" and rj["scale"] == "medium" and rj["dataset"] == "bandai2"
+    base = load_baseline(repo_root() / "tables" / "baselines" / "medium", rj["table"])
+    assert base["run"] == rj["run_id"]
+    assert compare(base, summary) == []  # checksum intact, every cell and verdict equal
+    made = make_baseline(summary, scale="medium", dataset="bandai2", run_id=rj["run_id"])
+    assert made["checksum"] == base["checksum"]
+    # every cell mean is the mean of the raw replicate values recorded beside it
+    values: dict[tuple[str, str], list[float]] = {}
+    for line in (path / "values.jsonl").read_text().splitlines():
+        v = json.loads(line)
+        if v["value"] is not None:
+            values.setdefault((v["row"], v["column"]), []).append(v["value"])
+    for row, cols in summary["cells"].items():
+        for col, cell in cols.items():
+            got = values[(row, col)]
+            assert len(got) == cell["n"] == 5
+            assert sum(got) / len(got) == pytest.approx(cell["mean"], rel=1e-12, abs=1e-12)
+
+
+def test_results_page_prints_the_records(tmp_path, monkeypatch):
+    from repro.engine.runner import table_view
+    from repro.report import render
+
+    home = tmp_path / "home"
+    for p in RUNS:
+        shutil.copytree(p, home / "runs" / p.name)
+    monkeypatch.setenv("REPRO_HOME", str(home))
+    page = [ln.rstrip() for ln in (repo_root() / "docs" / "results.md").read_text().splitlines()]
+    text = "\n".join(page)
+    for p in RUNS:
+        rj, _ = _run(p)
+        md = render(table_view(rj["table"], scale="medium", run=rj["run_id"]), "md")
+        block = "\n".join(ln.rstrip() for ln in md.strip().splitlines())
+        assert block in text, f"docs/results.md does not show run {rj['run_id']} as rendered"
