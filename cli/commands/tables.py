@@ -28,10 +28,13 @@ def register(sub) -> None:
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_plan)
 
-    p = sub.add_parser("run", help="train/load, sample, measure and print one or more tables")
+    p = sub.add_parser("run", help="train/load, sample, measure and print one or more tables",
+                       description="Several tables run as one job graph (shared jobs once; "
+                       "--jobs N overlaps their trainings); each gets its own run record.")
     p.add_argument("tables", nargs="+", metavar="TABLE")
     _common(p)
-    p.add_argument("--jobs", type=int, default=1, help="jobs run at once (default 1)")
+    p.add_argument("--jobs", type=int, default=1,
+                   help="jobs run at once, each with cpu_count // N torch threads (default 1)")
     p.add_argument("--force", nargs="?", const=True, default=None, metavar="KIND",
                    help="recompute everything, or only jobs of KIND (train, generate, measure, ...)")
     p.add_argument("--seeds", default=None, help="replicate seeds, e.g. 0-9 or 0,3,7 (default: the "
@@ -110,16 +113,16 @@ def cmd_plan(args) -> int:
 
 
 def cmd_run(args) -> int:
-    from repro.engine.runner import run_table, table_view
+    from repro.engine.runner import run_tables, table_view
     from repro.engine.tables import parse_seeds
     from repro.report import render
 
     rc = 0
-    for name in args.tables:
-        plan, summary, run_id = run_table(name, scale=args.scale, dataset=args.dataset,
-                                          jobs=args.jobs, force=args.force,
-                                          progress=not args.quiet and sys.stderr.isatty(),
-                                          seeds=parse_seeds(args.seeds) if args.seeds else None)
+    runs = run_tables(args.tables, scale=args.scale, dataset=args.dataset, jobs=args.jobs,
+                      force=args.force, progress=not args.quiet and sys.stderr.isatty(),
+                      seeds=parse_seeds(args.seeds) if args.seeds else None)
+    for plan, summary, run_id in runs:
+        name = plan.spec.id
         counts = summary.get("counts", {})
         print(f"repro: {plan.spec.id}: run {run_id} "
               f"({', '.join(f'{v} {k}' for k, v in sorted(counts.items())) or 'nothing to compute'})",
@@ -129,12 +132,12 @@ def cmd_run(args) -> int:
         if plan.data_missing:  # the table still prints (the paper's values), then one line
             print(f"repro: error: {plan.spec.id}: data set {plan.dataset!r}: {plan.data_missing}",
                   file=sys.stderr)
-            rc = 2
+            rc = max(rc, 2)
             continue
         failed = [r for r, st in summary.get("rows", {}).items() if st.get("status") == "failed"]
         if failed:
             print(f"repro: {plan.spec.id}: rows failed: {', '.join(failed)}", file=sys.stderr)
-            rc = 1
+            rc = max(rc, 1)
     return rc
 
 

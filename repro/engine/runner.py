@@ -126,47 +126,100 @@ def run_table(name: str, *, scale: str = "quick", dataset: str | None = None, jo
               seeds: tuple[int, ...] | None = None) -> tuple[Any, dict, str]:
     """Run one table; returns (plan, summary, run_id).  ``seeds`` replaces the profile's
     replicate seeds (the first one is also the training seed)."""
+    return run_tables([name], scale=scale, dataset=dataset, jobs=jobs, force=force,
+                      progress=progress, seeds=seeds)[0]
+
+
+def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = None,
+               jobs: int = 1, force: Any = None, progress: bool = True,
+               seeds: tuple[int, ...] | None = None) -> list[tuple[Any, dict, str]]:
+    """Run several tables as one job graph; one (plan, summary, run_id) per distinct name.
+
+    Every spec is resolved first (a typo stops before anything is computed); each table gets
+    its own run record, evaluators and gate; then the jobs of all tables run as one graph, so
+    ``--jobs N`` overlaps them (Tables 1, 2 and 4 share MarioNet's training and their other
+    trainings run side by side instead of one table after another)."""
+    from contextlib import ExitStack
+
     from repro.engine.tables import build_plan, collect_values, summarise
     from repro.store.runs import RunRecorder
 
-    spec = _spec(name)
     sc = _scale(scale, dataset)
-    plan = build_plan(spec, sc, dataset, seeds)
-    rec = RunRecorder(table=spec.id, spec_version=spec.version, spec_hash=spec.spec_hash,
-                      config=plan.config, scale=sc.name, dataset=plan.dataset)
-    with rec:
-        evaluators = _evaluators(plan, train=bool(plan.jobs()), progress=progress)
-        if plan.jobs():
-            _gate(plan)
-        reports, counts = _execute_rows(plan, jobs=jobs, force=force, progress=progress,
-                                        recorder=rec)
-        values = collect_values(plan, reports)
-        rec.add_values(values)
-        summary = summarise(plan, values)
-        summary["evaluators"] = evaluators
-        summary["footer"] = _footer(plan, evaluators, rec.run_id)
-        summary["counts"] = counts
-        rec.write_summary(summary)
-    return plan, summary, rec.run_id
+    specs = list({s.id: s for s in (_spec(n) for n in names)}.values())
+    plans = [build_plan(spec, sc, dataset, seeds) for spec in specs]
+    out = []
+    with ExitStack() as stack:
+        recs = [stack.enter_context(RunRecorder(
+            table=p.spec.id, spec_version=p.spec.version, spec_hash=p.spec.spec_hash,
+            config=p.config, scale=sc.name, dataset=p.dataset)) for p in plans]
+        evaluators = [_evaluators(p, train=bool(p.jobs()), progress=progress) for p in plans]
+        for p in plans:
+            if p.jobs():
+                _gate(p)
+        executed = _execute_plans(plans, recs, jobs=jobs, force=force, progress=progress)
+        for p, rec, ev, (reports, counts) in zip(plans, recs, evaluators, executed):
+            values = collect_values(p, reports)
+            rec.add_values(values)
+            summary = summarise(p, values)
+            summary["evaluators"] = ev
+            summary["footer"] = _footer(p, ev, rec.run_id)
+            summary["counts"] = counts
+            rec.write_summary(summary)
+            rec.finish()
+            out.append((p, summary, rec.run_id))
+    return out
 
 
-def _execute_rows(plan, *, jobs: int, force: Any, progress: bool,
-                  recorder) -> tuple[dict[str, Any], dict[str, int]]:
-    """Execute every row's sub-graph as one graph, so ``--jobs N`` overlaps the rows (five
-    trainings of a table run N at a time, not one after another).  A job that fails cancels
-    only what depends on it (``keep_going``): each row it reaches is marked FAILED with the
-    error and the other rows go on; a user error (:class:`ReproError`) and Ctrl-C still stop
-    the run.  Returns (row id -> the graph's report, job counts by status)."""
+class _FanOut:
+    """The executor's recorder for a graph that serves several tables: each job line goes to
+    the run record of every table whose graph contains the job; an interrupt or a failure
+    that stops the graph ends every table's run."""
+
+    status = "RUNNING"
+
+    def __init__(self, recorders: list, keys: list[set[str]]):
+        self._pairs = list(zip(recorders, keys))
+
+    def record_job(self, rec) -> None:
+        for recorder, keys in self._pairs:
+            if rec.get("key") in keys:
+                recorder.record_job(rec)
+
+    def interrupt(self, note: str = "interrupted") -> None:
+        for recorder, _ in self._pairs:
+            recorder.interrupt(note)
+
+    def fail(self, error: str) -> None:
+        for recorder, _ in self._pairs:
+            recorder.fail(error)
+
+
+def _row_targets(rp) -> list:
+    return [j for js in rp.measures.values() for j in js]
+
+
+def _execute_plans(plans: list, recorders: list, *, jobs: int, force: Any,
+                   progress: bool) -> list[tuple[dict[str, Any], dict[str, int]]]:
+    """Execute every row of every plan as one graph, so ``--jobs N`` overlaps rows and tables
+    (five trainings of a table run N at a time, not one after another).  A job that fails
+    cancels only what depends on it (``keep_going``): each row it reaches is marked FAILED
+    with the error and the other rows go on; a user error (:class:`ReproError`) and Ctrl-C
+    still stop the run.  Returns, per plan, (row id -> the graph's report, job counts by
+    status over that table's jobs)."""
     from repro.engine.executor import execute
+    from repro.engine.job import topo_order
     from repro.report.view import FAILED
 
     targets: dict[str, Any] = {}
-    for rp in plan.rows:
-        for js in rp.measures.values():
-            for j in js:
-                targets.setdefault(j.key(), j)
+    keys: list[set[str]] = []
+    for p in plans:
+        mine = [j for rp in p.rows for j in _row_targets(rp)]
+        for j in mine:
+            targets.setdefault(j.key(), j)
+        keys.append({j.key() for j in topo_order(mine)} if mine else set())
     if not targets:
-        return {}, {}
+        return [({}, {}) for _ in plans]
+    fan = _FanOut(recorders, keys)
     hook = None
     if progress:
         from repro.engine.progress import RichProgressHook
@@ -175,23 +228,31 @@ def _execute_rows(plan, *, jobs: int, force: Any, progress: bool,
     if hook is not None:
         with hook:
             report = execute(list(targets.values()), jobs=jobs, force=force, hook=hook,
-                             recorder=recorder, keep_going=True)
+                             recorder=fan, keep_going=True)
     else:
-        report = execute(list(targets.values()), jobs=jobs, force=force, recorder=recorder,
+        report = execute(list(targets.values()), jobs=jobs, force=force, recorder=fan,
                          keep_going=True)
-    reports: dict[str, Any] = {}
-    for rp in plan.rows:
-        row_targets = [j for js in rp.measures.values() for j in js]
-        if not row_targets:
-            continue
-        failed = report.failure_of(row_targets)
-        if failed is not None:  # a bug or a numerical failure in one method: say it, go on
-            rp.status, rp.reason = FAILED, f"{failed.job.name}: {failed.error}"
-            rp.measures = {}
-            print(f"repro: row {rp.row_id} failed: {rp.reason}", file=sys.stderr)
-            continue
-        reports[rp.row_id] = report
-    return reports, report.counts
+    out = []
+    for p, mine in zip(plans, keys):
+        reports: dict[str, Any] = {}
+        for rp in p.rows:
+            row_targets = _row_targets(rp)
+            if not row_targets:
+                continue
+            failed = report.failure_of(row_targets)
+            if failed is not None:  # a bug or a numerical failure in one method: say it, go on
+                rp.status, rp.reason = FAILED, f"{failed.job.name}: {failed.error}"
+                rp.measures = {}
+                print(f"repro: {p.spec.id}: row {rp.row_id} failed: {rp.reason}",
+                      file=sys.stderr)
+                continue
+            reports[rp.row_id] = report
+        counts: dict[str, int] = {}
+        for r in report.results:
+            if r.key in mine:
+                counts[r.status] = counts.get(r.status, 0) + 1
+        out.append((reports, counts))
+    return out
 
 
 def latest_run(table: str, scale: str | None = None, dataset: str | None = None) -> Path | None:
