@@ -18,6 +18,15 @@ def _repro_home(tmp_path_factory, monkeypatch):
     yield home
 
 
+@pytest.fixture
+def paper_data(tmp_path, monkeypatch):
+    """An empty $REPRO_PAPER_DATA (the upstream data sets' root), no SMPL folder set."""
+    root = tmp_path / "paper-data"
+    monkeypatch.setenv("REPRO_PAPER_DATA", str(root))
+    monkeypatch.delenv("REPRO_SMPL_DIR", raising=False)
+    return root
+
+
 @pytest.fixture(scope="session")
 def bandai_archive():
     path = find_bandai_archive()

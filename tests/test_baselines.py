@@ -19,7 +19,7 @@ from repro.models.baseline_io import pack_poses, pose_joints
 from repro.models.items import build_items
 from repro.models.mann import MANN, MANNConfig, ExpertLinear, sgdr_factor
 from repro.motion.rotations import sixd_to_matrix
-from test_items import synthetic_clipset
+from model_fixtures import clips, items, one_torch_thread, test_items  # noqa: F401 (fixtures)
 
 TINY = {
     "mann": dict(n_experts=3, hidden=24, gating_hidden=8, batch_size=32, epochs=3, lr=3e-3,
@@ -29,29 +29,6 @@ TINY = {
                   lr=1e-3, sample_batch_size=4),
 }
 METHODS = sorted(TINY)
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
-@pytest.fixture(scope="module")
-def clips():
-    return synthetic_clipset(n_per_class=6, min_len=14, max_len=26)
-
-
-@pytest.fixture(scope="module")
-def items(clips):
-    return build_items(clips, TRAIN)
-
-
-@pytest.fixture(scope="module")
-def test_items(clips):
-    return build_items(clips, TEST)
 
 
 def model(method, clips, **over):

@@ -14,14 +14,6 @@ from repro.data.upstream.humanact12 import read_humanact12
 from repro.data.upstream.skeletons import SMPLH_52
 
 
-@pytest.fixture
-def paper_data(tmp_path, monkeypatch):
-    root = tmp_path / "paper-data"
-    monkeypatch.setenv("REPRO_PAPER_DATA", str(root))
-    monkeypatch.delenv("REPRO_SMPL_DIR", raising=False)
-    return root
-
-
 def test_nothing_present_lists_every_dataset_and_what_is_missing(paper_data, capsys):
     assert main(["doctor"]) == 0
     out = capsys.readouterr().out

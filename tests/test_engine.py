@@ -80,6 +80,15 @@ def evaluate(ctx):
     (ctx.out / "score.json").write_text(json.dumps({"score": round(w, 12)}))
 
 
+def threads(ctx):
+    import torch
+    from threadpoolctl import threadpool_info
+
+    blas = sorted({p["num_threads"] for p in threadpool_info()})
+    (ctx.out / "threads.json").write_text(json.dumps(
+        {"torch": torch.get_num_threads(), "pools": blas, "ctx": ctx.threads}))
+
+
 def noise(ctx):
     _note(ctx)
     (ctx.out / "noise.bin").write_bytes(os.urandom(16))
@@ -153,12 +162,13 @@ def test_key_is_order_invariant_and_sensitive_to_every_part(jobs_module):
         Job(inputs=(prep,), **{**base, "kind": "train2"}),
         Job(inputs=(prep,), **{**base, "impl": f"{MOD}:evaluate"}),
         Job(inputs=(), **base),
+        Job(inputs=(prep,), **base, threads=2),
     ]
     keys = {v.key() for v in variants} | {j.key()}
     assert len(keys) == len(variants) + 1
     parts = j.key_parts()
     assert set(parts) == {"schema", "kind", "impl", "source", "config", "inputs",
-                          "fingerprints", "seed"}
+                          "fingerprints", "seed", "threads", "plugins"}
     assert parts["inputs"] == [prep.key()]
     # configs are copied: mutating the caller's dict changes nothing
     cfg = {"lr": 0.1}
@@ -177,6 +187,12 @@ def test_invalid_jobs_are_refused(jobs_module):
         Job("train", f"{MOD}:train", {"path": Path("/tmp")}, seed=0)
     with pytest.raises(ValueError, match="canonical JSON"):
         Job("train", f"{MOD}:train", {"lr": float("nan")}, seed=0)
+    for bad in (0, True, 1.5):
+        with pytest.raises(ValueError, match="threads"):
+            Job("train", f"{MOD}:train", seed=0, threads=bad)
+    for bad in ("repro.keys", ("not a module",), ("",)):
+        with pytest.raises(ValueError, match="plugins"):
+            Job("train", f"{MOD}:train", seed=0, plugins=bad)
 
 
 def test_source_hash_follows_repro_imports_and_changes_with_the_code(jobs_module):
@@ -194,6 +210,25 @@ def test_source_hash_follows_repro_imports_and_changes_with_the_code(jobs_module
     # and a change in an imported repro module would change it as well
     assert dict(source_manifest("repro.engine.job"))["repro.keys"] == \
         dict(source_manifest(MOD))["repro.keys"]
+
+
+def test_a_plugin_loaded_by_name_is_part_of_the_key(jobs_module, tmp_path):
+    """A module the job loads through a registry (no import statement leads to it) is hashed
+    when the job names it in ``plugins``: editing it changes the key."""
+    plug = jobs_module.path.parent / "repro_testplugin.py"
+    plug.write_text("def method():\n    return 1\n")
+    clear_source_cache()
+    job = Job("train", f"{MOD}:train", {"lr": 0.1}, seed=0, plugins=("repro_testplugin",))
+    bare = Job("train", f"{MOD}:train", {"lr": 0.1}, seed=0)
+    assert job.key_parts()["plugins"] == ["repro_testplugin"] and job.key() != bare.key()
+    assert Job("train", f"{MOD}:train", {"lr": 0.1}, seed=0,
+               plugins=["repro_testplugin", "repro_testplugin"]).key() == job.key()
+    old = job.key()
+    plug.write_text("def method():\n    return 2\n")
+    clear_source_cache()
+    again = Job("train", f"{MOD}:train", {"lr": 0.1}, seed=0, plugins=("repro_testplugin",))
+    assert again.key() != old
+    assert bare.key_parts()["source"] == source_hash(MOD)
 
 
 def test_topo_order_merges_shared_jobs(jobs_module):
@@ -494,6 +529,27 @@ def test_process_pool_gives_the_same_bytes_as_inline(jobs_module):
     assert ("train/s0", 4, 4, "training") in ev.progress
     assert len(ev.finished) == 7 and ev.report.counts == {COMPUTED: 7}
     assert execute(targets, jobs=2).all_hits
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_a_job_computes_with_its_own_thread_count_whatever_jobs_says(jobs_module, jobs):
+    """A table's bytes must not depend on --jobs: a job's declared ``threads`` (part of its
+    key) is what torch and the BLAS/OpenMP pools use while it runs; the caller's count is
+    restored afterwards; a job without one gets the executor's ``threads_per_job``."""
+    import torch
+
+    before = torch.get_num_threads()
+    one = Job("probe", f"{MOD}:threads", {"n": 1}, seed=0, label="one", threads=1)
+    two = Job("probe", f"{MOD}:threads", {"n": 2}, seed=0, label="two", threads=2)
+    free = Job("probe", f"{MOD}:threads", {"n": 3}, seed=0, label="free")
+    report = execute([one, two, free], jobs=jobs, threads_per_job=3)
+    seen = {j.label: json.loads(report.object(j).read_text("threads.json")) for j in (one, two, free)}
+    assert seen["one"] == {"torch": 1, "pools": [1], "ctx": 1}
+    assert seen["two"] == {"torch": 2, "pools": [2], "ctx": 2}
+    assert seen["free"]["torch"] == 3 and seen["free"]["ctx"] == 3
+    assert torch.get_num_threads() == before
+    assert len({one.key(), two.key(), Job("probe", f"{MOD}:threads", {"n": 1}, seed=0,
+                                          threads=2).key()}) == 3
 
 
 def test_rich_progress_hook_runs(jobs_module):

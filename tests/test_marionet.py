@@ -8,41 +8,16 @@ import json
 import pytest
 import torch
 
-from repro.data.clipset import TEST, TRAIN
 from repro.errors import ConfigError, DataError, MissingDataError
 from repro.models.base import Generator, generator_class
-from repro.models.items import build_items
 from repro.models.layers import TransformerDecoder
 from repro.models.marionet import (MarioNet, MarioNetConfig, _term, kl_divergence, pack_poses)
-from test_items import synthetic_clipset
+from model_fixtures import clips, items, one_torch_thread, test_items  # noqa: F401 (fixtures)
 
 TINY = dict(d_model=16, traj_dim=4, cond_heads=2, cond_ff=32, cond_layers=1, traj_heads=1,
             traj_ff=8, unroll_heads=2, unroll_ff=32, unroll_layers=1, dec_heads=2, dec_ff=32,
             dec_layers=2, batch_size=8, lr=1e-3, epochs=2, ss_activate_epoch=1,
             ss_accomplish_epoch=3, sample_batch_size=4)
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)  # tiny ops: thread hand-offs cost more than they save
-    yield
-    torch.set_num_threads(n)
-
-
-@pytest.fixture(scope="module")
-def clips():
-    return synthetic_clipset(n_per_class=6, min_len=14, max_len=26)
-
-
-@pytest.fixture(scope="module")
-def items(clips):
-    return build_items(clips, TRAIN)
-
-
-@pytest.fixture(scope="module")
-def test_items(clips):
-    return build_items(clips, TEST)
 
 
 def model(clips, **over):

@@ -315,3 +315,46 @@ def test_run_without_its_data_prints_the_paper_then_exits_2(tiny_tables, _repro_
     assert len(errors) == 1 and "data set 'bandai2'" in errors[0]
     assert "repro data prepare bandai2" in errors[0] and "Traceback" not in out.stderr
     assert "data unavailable" in out.stdout and "Real Test Data" in out.stdout
+
+
+def test_every_table_job_computes_with_the_profiles_threads(tiny_tables):
+    """The CPU thread count is a profile value carried by every job of a table (so --jobs
+    never changes a result) and part of each key (another count is another computation)."""
+    import dataclasses
+
+    from repro.engine.job import topo_order
+    from repro.engine.tables import build_plan
+    from repro.specs.load import find_spec
+    from repro.specs.scales import resolve_scale
+
+    spec, scale = find_spec("marionette/table1"), resolve_scale("quick")
+    assert scale.threads == 1 and scale.to_dict()["threads"] == 1
+
+    def jobs(s):
+        plan = build_plan(spec, s)
+        return topo_order(j for rp in plan.rows for ms in rp.measures.values() for j in ms)
+
+    ones, twos = jobs(scale), jobs(dataclasses.replace(scale, threads=2))
+    assert ones and {j.threads for j in ones} == {1} and {j.threads for j in twos} == {2}
+    assert not {j.key() for j in ones} & {j.key() for j in twos}
+
+
+def test_table_jobs_hash_the_method_and_protocol_they_load_by_name(tiny_tables):
+    """The method's and the protocol's modules are found through registries, not imports:
+    each table job names them as plug-ins, so editing MarioNet's code changes its keys."""
+    from repro.engine.job import topo_order
+    from repro.engine.source_hash import source_manifest
+    from repro.engine.tables import build_plan
+    from repro.specs.load import find_spec
+    from repro.specs.scales import resolve_scale
+
+    plan = build_plan(find_spec("marionette/table1"), resolve_scale("quick"))
+    jobs = topo_order(j for rp in plan.rows for ms in rp.measures.values() for j in ms)
+    proto = "repro.eval.protocols.single_action"
+    assert proto not in dict(source_manifest("repro.engine.steps"))  # why plug-ins are needed
+    by_kind = {}
+    for j in jobs:
+        by_kind.setdefault(j.kind, set()).add(j.plugins)
+        assert proto in j.plugins, j.label
+    assert (proto, "repro.models.nearest_clip") in by_kind["train"]  # sorted
+    assert by_kind["measure_real"] == {(proto,)}

@@ -13,14 +13,6 @@ from repro.data.upstream.uestc import read_uestc
 from repro.errors import MissingDataError
 
 
-@pytest.fixture
-def paper_data(tmp_path, monkeypatch):
-    root = tmp_path / "paper-data"
-    monkeypatch.setenv("REPRO_PAPER_DATA", str(root))
-    monkeypatch.delenv("REPRO_SMPL_DIR", raising=False)
-    return root
-
-
 def test_entries_are_registered_as_paper_datasets():
     names = [e.name for e in ENTRIES]
     assert names == ["humanact12", "uestc", "cmu-mocap", "babel", "babel-mag"]

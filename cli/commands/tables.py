@@ -34,7 +34,8 @@ def register(sub) -> None:
     p.add_argument("tables", nargs="+", metavar="TABLE")
     _common(p)
     p.add_argument("--jobs", type=int, default=1,
-                   help="jobs run at once, each with cpu_count // N torch threads (default 1)")
+                   help="jobs run side by side (default 1); each computes with the scale's "
+                   "`threads` (1), so N up to the core count; results do not depend on N")
     p.add_argument("--force", nargs="?", const=True, default=None, metavar="KIND",
                    help="recompute everything, or only jobs of KIND (train, generate, measure, ...)")
     p.add_argument("--seeds", default=None, help="replicate seeds, e.g. 0-9 or 0,3,7 (default: the "

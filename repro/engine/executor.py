@@ -14,7 +14,9 @@ with the ``spawn`` start method, not threads: torch keeps process-global state (
 generator that ``torch.nn`` initialisers draw from, the intra-op thread count), so concurrent
 jobs in threads would perturb each other's random streams and thread settings; ``spawn`` (not
 ``fork``) because forking a process that has started torch/OpenMP threads can deadlock.  Each
-worker gets ``threads_per_job`` torch threads (default ``cpu_count // N``).
+job computes with its own ``threads`` when it declares them (a table's jobs do: the scale
+profile's count, part of their keys, so ``--jobs`` changes only how many run side by side, never
+a result); other jobs get ``threads_per_job`` (default ``cpu_count // N``; inline, the process's).
 
 Failures: by default a failing job stops the graph (the jobs not yet started are CANCELLED and
 its exception is re-raised).  With ``keep_going=True`` (what a table run uses, so that one
@@ -133,14 +135,30 @@ class ProgressHook:
 
 
 # ---------------------------------------------------------------------- running one job
-def _apply_threads(threads: int | None) -> None:
+@contextmanager
+def _thread_count(threads: int | None):
+    """Compute with ``threads`` torch and BLAS/OpenMP threads for the duration (nothing when
+    None), then restore the previous counts.  Before torch is imported (a fresh worker) the
+    count goes through ``OMP_NUM_THREADS``/``MKL_NUM_THREADS``, which torch reads at import."""
     if not threads:
+        yield
         return
-    if "torch" in sys.modules:
-        sys.modules["torch"].set_num_threads(int(threads))
+    from threadpoolctl import threadpool_limits
+
+    n = int(threads)
+    torch = sys.modules.get("torch")
+    before = torch.get_num_threads() if torch is not None else None
+    if torch is not None:
+        torch.set_num_threads(n)
     else:
         for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-            os.environ[var] = str(int(threads))
+            os.environ[var] = str(n)
+    try:
+        with threadpool_limits(limits=n):
+            yield
+    finally:
+        if before is not None:
+            torch.set_num_threads(before)
 
 
 def _meta(job: Job) -> dict[str, Any]:
@@ -162,37 +180,44 @@ def _job_logger(store: Store, job: Job, key: str) -> tuple[logging.Logger, loggi
 def run_job(job: Job, key: str, inputs: tuple[StoredObject, ...], store: Store, *,
             force: bool = False, threads: int | None = None, progress=None
             ) -> tuple[str, StoredObject]:
-    """Run one job (inputs already resolved) and return ``(status, object)``."""
-    from repro.store.objects import _payload_files
-
+    """Run one job (inputs already resolved) and return ``(status, object)``, computing with
+    the job's own ``threads`` when it declares them, else with ``threads`` (the executor's)."""
     fn = job.resolve()
-    _apply_threads(threads)
+    threads = job.threads or threads
     logger, handler = _job_logger(store, job, key)
     try:
-        if job.cacheable:
-            def payload(out: Path) -> None:
-                scratch = store.scratch(key)
-                logger.info("start %s key %s (scratch %s)", job.impl, key[:12], scratch)
-                fn(JobContext(job, key, inputs, out, scratch, logger, threads, progress))
-
-            obj = store.compute(key, job.kind, payload, meta=_meta(job), force=force)
-            logger.info("%s", "found in the store" if obj.hit else "published")
-            return (HIT if obj.hit else COMPUTED), obj
-        from repro.keys import sha256_file
-        from repro.store.atomic import utc_now
-
-        root = store.ephemeral_dir()
-        out, scratch = root / "out", root / "scratch"
-        out.mkdir()
-        scratch.mkdir()
-        fn(JobContext(job, key, inputs, out, scratch, logger, threads, progress))
-        files = {rel: {"sha256": sha256_file(p), "size": p.stat().st_size}
-                 for rel, p in _payload_files(out)}
-        return UNCACHED, StoredObject(key, job.kind, out, files, utc_now(), _meta(job),
-                                      hit=False, ephemeral=True)
+        with _thread_count(threads):
+            return _run_payload(fn, job, key, inputs, store, logger, force, threads, progress)
     finally:
         logger.removeHandler(handler)
         handler.close()
+
+
+def _run_payload(fn, job: Job, key: str, inputs, store: Store, logger, force: bool,
+                 threads: int | None, progress) -> tuple[str, StoredObject]:
+    from repro.keys import sha256_file
+    from repro.store.atomic import utc_now
+    from repro.store.objects import _payload_files
+
+    if job.cacheable:
+        def payload(out: Path) -> None:
+            scratch = store.scratch(key)
+            logger.info("start %s key %s (scratch %s, %s threads)", job.impl, key[:12], scratch,
+                        threads or "default")
+            fn(JobContext(job, key, inputs, out, scratch, logger, threads, progress))
+
+        obj = store.compute(key, job.kind, payload, meta=_meta(job), force=force)
+        logger.info("%s", "found in the store" if obj.hit else "published")
+        return (HIT if obj.hit else COMPUTED), obj
+    root = store.ephemeral_dir()
+    out, scratch = root / "out", root / "scratch"
+    out.mkdir()
+    scratch.mkdir()
+    fn(JobContext(job, key, inputs, out, scratch, logger, threads, progress))
+    files = {rel: {"sha256": sha256_file(p), "size": p.stat().st_size}
+             for rel, p in _payload_files(out)}
+    return UNCACHED, StoredObject(key, job.kind, out, files, utc_now(), _meta(job),
+                                  hit=False, ephemeral=True)
 
 
 # ---------------------------------------------------------------------- worker processes

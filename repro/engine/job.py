@@ -5,13 +5,24 @@ for one seed, sample, evaluate, ...).  Its key is :func:`repro.keys.content_key`
 :meth:`Job.key_parts`::
 
     {"schema": 1, "kind": ..., "impl": "pkg.module:function",
-     "source": source_hash(pkg.module),          # the code, transitively (source_hash.py)
+     "source": source_hash(pkg.module, *plugins), # the code, transitively (source_hash.py)
+     "plugins": [module names loaded by name at run time],
      "config": {...resolved...}, "inputs": [input keys, in order],
-     "fingerprints": {"dataset": ..., "evaluator": ...}, "seed": int | None}
+     "fingerprints": {"dataset": ..., "evaluator": ...}, "seed": int | None,
+     "threads": int | None}
 
 Canonical JSON makes the key independent of dict order; the order of ``inputs`` is kept
 because the implementation receives them positionally.  ``label`` (display, ``plan --why``
 bookkeeping) is not part of the key, so identical jobs built by two tables are one job.
+
+``plugins`` names the modules the implementation loads by name through a registry (the row's
+method, the band's protocol): no import statement leads the source hash to them, so the job
+lists them and their code (transitively) is hashed with its own.
+
+``threads`` is the torch/BLAS CPU thread count the job computes with (the executor applies it
+for the job's duration, whatever ``--jobs`` says): float reductions, hence trained weights,
+depend on it, so it is part of the key (a table's jobs take it from the scale profile).  A job
+without one runs with the executor's default and must not depend on the count.
 
 A job with ``seed=None`` is cached only when it declares ``deterministic=True``; otherwise it
 (and everything downstream of it) is re-run every time and never published (unseeded work is
@@ -34,7 +45,7 @@ from typing import Any
 
 from repro.keys import canonical_json, content_key
 
-KEY_SCHEMA = 1
+KEY_SCHEMA = 2  # 2: ``threads`` and ``plugins`` in the key
 
 
 def _plain(obj: Any, what: str) -> Any:
@@ -62,6 +73,8 @@ class Job:
     fingerprints: Mapping[str, Any] = field(default_factory=dict)
     label: str = ""
     deterministic: bool = False
+    threads: int | None = None
+    plugins: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if not isinstance(self.kind, str) or not self.kind.strip():
@@ -72,8 +85,16 @@ class Job:
             raise ValueError(f"job impl must be 'package.module:function', got {self.impl!r}")
         if self.seed is not None and (isinstance(self.seed, bool) or not isinstance(self.seed, int)):
             raise ValueError(f"job seed must be an int or None, got {self.seed!r}")
+        if self.threads is not None and (isinstance(self.threads, bool)
+                                         or not isinstance(self.threads, int) or self.threads < 1):
+            raise ValueError(f"job threads must be an int >= 1 or None, got {self.threads!r}")
         if not isinstance(self.config, Mapping) or not isinstance(self.fingerprints, Mapping):
             raise ValueError("job config and fingerprints must be mappings")
+        plugins = () if isinstance(self.plugins, str) else tuple(self.plugins)
+        if isinstance(self.plugins, str) or not all(isinstance(m, str) and m and all(p.isidentifier() for p in m.split("."))
+                   for m in plugins):
+            raise ValueError(f"job plugins must be module names, got {self.plugins!r}")
+        object.__setattr__(self, "plugins", tuple(sorted(set(plugins))))
         object.__setattr__(self, "config", _plain(dict(self.config), "config"))
         object.__setattr__(self, "fingerprints", _plain(dict(self.fingerprints), "fingerprints"))
         inputs = tuple(self.inputs)
@@ -115,11 +136,13 @@ class Job:
             "schema": KEY_SCHEMA,
             "kind": self.kind,
             "impl": self.impl,
-            "source": source_hash(self.module),
+            "source": source_hash(self.module, *self.plugins),
+            "plugins": list(self.plugins),
             "config": self.config,
             "inputs": [j.key() for j in self.inputs],
             "fingerprints": self.fingerprints,
             "seed": self.seed,
+            "threads": self.threads,
         }
 
     @cached_property

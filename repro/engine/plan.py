@@ -130,7 +130,7 @@ def load_record(store, job: Job) -> dict | None:
 
 def record(store, job: Job) -> None:
     """Remember ``job``'s key parts under its identity (called by the executor)."""
-    from repro.engine.source_hash import source_manifest
+    from repro.engine.source_hash import joined_manifest
     from repro.store.atomic import atomic_write_json, utc_now
 
     old = load_record(store, job)
@@ -138,7 +138,7 @@ def record(store, job: Job) -> None:
         return
     atomic_write_json(_record_path(store, job), {
         "schema": PLAN_SCHEMA, "kind": job.kind, "label": job.label, "key": job.key(),
-        "key_parts": job.key_parts(), "sources": dict(source_manifest(job.module)),
+        "key_parts": job.key_parts(), "sources": joined_manifest(job.module, *job.plugins),
         "input_names": [j.name for j in job.inputs], "recorded": utc_now(),
     })
 
@@ -164,7 +164,7 @@ def _dict_changes(prefix: str, old: Any, new: Any, out: list[str]) -> None:
 
 def describe_changes(old: dict, job: Job, limit: int = 6) -> list[str]:
     """What differs between a stored record ``old`` and ``job`` now (human phrases)."""
-    from repro.engine.source_hash import source_manifest
+    from repro.engine.source_hash import joined_manifest
 
     a, b = old.get("key_parts", {}), job.key_parts()
     out: list[str] = []
@@ -173,7 +173,7 @@ def describe_changes(old: dict, job: Job, limit: int = 6) -> list[str]:
     if a.get("impl") != b["impl"]:
         out.append(f"implementation {a.get('impl')} -> {b['impl']}")
     if a.get("source") != b["source"]:
-        olds, news = old.get("sources", {}), dict(source_manifest(job.module))
+        olds, news = old.get("sources", {}), joined_manifest(job.module, *job.plugins)
         changed = sorted(m for m in set(olds) & set(news) if olds[m] != news[m])
         added = sorted(set(news) - set(olds))
         removed = sorted(set(olds) - set(news))
@@ -203,6 +203,8 @@ def describe_changes(old: dict, job: Job, limit: int = 6) -> list[str]:
             out.append(f"{name} fingerprint changed")
     if a.get("seed") != b["seed"]:
         out.append(f"seed {a.get('seed')} -> {b['seed']}")
+    if a.get("threads") != b["threads"]:
+        out.append(f"threads {a.get('threads')} -> {b['threads']}")
     if len(out) > limit:
         out = out[:limit] + [f"and {len(out) - limit} more"]
     return out

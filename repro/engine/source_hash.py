@@ -137,10 +137,20 @@ def source_manifest(module_name: str) -> tuple[tuple[str, str], ...]:
     return tuple(sorted(seen.items()))
 
 
+def joined_manifest(module_name: str, *more: str) -> dict[str, str]:
+    """:func:`source_manifest` of ``module_name`` joined with those of ``more`` modules: the
+    plug-ins a job loads by name at run time (a method's or a protocol's module, found through
+    a registry, not an import statement)."""
+    out = dict(source_manifest(module_name))
+    for m in more:
+        out.update(source_manifest(m))
+    return out
+
+
 @lru_cache(maxsize=None)
-def source_hash(module_name: str) -> str:
-    """sha256 over :func:`source_manifest` of ``module_name`` (see the module docstring)."""
-    return content_key([list(p) for p in source_manifest(module_name)])
+def source_hash(module_name: str, *more: str) -> str:
+    """sha256 over :func:`joined_manifest` (see the module docstring)."""
+    return content_key([list(p) for p in sorted(joined_manifest(module_name, *more).items())])
 
 
 def clear_source_cache() -> None:

@@ -79,34 +79,35 @@ def train_method(ctx) -> None:
          "seconds": getattr(result, "seconds", None)}, sort_keys=True))
 
 
-def generate(ctx) -> None:
-    from repro.models.base import Generator
-
+def _replicate_inputs(ctx):
+    """What every per-replicate step starts from: the job's config, the global generators
+    seeded from the job's seed, the protocol, the data set's clips and the protocol's test
+    items."""
     cfg = ctx.config
     ctx.seed_globals()
     proto = _protocol(cfg)
-    items = proto.test_items(clipset(cfg["dataset"]))
+    clips = clipset(cfg["dataset"])
+    return cfg, proto, clips, proto.test_items(clips)
+
+
+def generate(ctx) -> None:
+    from repro.models.base import Generator
+
+    cfg, proto, _, items = _replicate_inputs(ctx)
     gen = Generator.load(ctx.inputs[0].path)
     out = proto.generate(gen, items, seed=ctx.seed, replicate=cfg["replicate"], need=cfg["need"])
     proto.save_generated(out, ctx.out / GENERATED)
 
 
 def measure(ctx) -> None:
-    cfg = ctx.config
-    ctx.seed_globals()
-    proto = _protocol(cfg)
-    items = proto.test_items(clipset(cfg["dataset"]))
+    cfg, proto, _, items = _replicate_inputs(ctx)
     generated = proto.load_generated(ctx.inputs[0].path / GENERATED)
     values = proto.measure(generated, items, evaluator_for(cfg), seed=ctx.seed)
     _write_values(ctx, values)
 
 
 def measure_real(ctx) -> None:
-    cfg = ctx.config
-    ctx.seed_globals()
-    proto = _protocol(cfg)
-    clips = clipset(cfg["dataset"])
-    items = proto.test_items(clips)
+    cfg, proto, clips, items = _replicate_inputs(ctx)
     values = proto.real_replicate(clips, items, evaluator_for(cfg), seed=ctx.seed,
                                   replicate=cfg["replicate"])
     _write_values(ctx, values)

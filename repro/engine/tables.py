@@ -4,7 +4,10 @@ Data flow (DESIGN.md): spec + scale profile + data set → bands of columns that
 protocol → per row: ``train`` (one model per row, training seed = the profile's first seed) →
 per replicate: ``generate`` → ``measure``; the "Real" row: per replicate ``measure_real``.
 Every job's key covers its kind, the source of its implementation, its resolved config, its
-inputs, the data-set fingerprint, the evaluator's store key and its seed, so jobs shared by
+inputs, the data-set fingerprint, the evaluator's store key, its seed, its CPU thread count
+(the profile's ``threads``: float reductions depend on it) and, as plug-ins, the source of the
+row's method module and of the band's protocol module (both loaded by name, so no import
+statement leads the source hash to them), so jobs shared by
 two tables (the full MarioNet serves Tables 1, 2 and 4) run once.
 
 Replicates (a choice the papers' reference code also makes): a replicate is an independent
@@ -57,6 +60,7 @@ class Band:
     evaluator: dict[str, Any] | None = None  # {dataset, kind, scale, seed}
     evaluator_key: str | None = None
     version: int | None = None  # the protocol implementation's version
+    module: str | None = None   # the protocol implementation's module (a plug-in of its jobs)
 
     def step_config(self, dataset: str, *, with_evaluator: bool = False) -> dict[str, Any]:
         """What every step of this band reads: data set and protocol (+ the evaluator for the
@@ -187,6 +191,7 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
         b.implemented = True
         b.params = proto.params.describe()  # resolved defaults, as the steps get them back
         b.version = proto.version
+        b.module = type(proto).__module__
         b.evaluator = {"dataset": dataset, "kind": proto.evaluator_kind, "scale": scale.name,
                        "seed": 0}
         if fp is not None:
@@ -211,6 +216,9 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
             if mcfg is None:
                 rp.status, rp.reason = NOT_IMPLEMENTED, why
                 continue
+            from repro.models.base import generator_class
+
+            method_module = generator_class(row.method).__module__
         for bi, b in enumerate(bands):
             if not b.implemented:
                 continue
@@ -221,23 +229,27 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
                     Job("measure_real", f"{STEPS}:measure_real",
                         {**base, "replicate": r, "evaluator": b.evaluator},
                         seed=s, fingerprints={**fps, "evaluator": b.evaluator_key},
-                        label=f"{row.id}/real/r{r}")
+                        label=f"{row.id}/real/r{r}", threads=scale.threads,
+                        plugins=(b.module,))
                     for r, s in enumerate(seeds)]
                 continue
             train = Job("train", f"{STEPS}:train_method",
                         {**base, "method": row.method, "method_config": mcfg},
-                        seed=seeds[0], fingerprints=fps, label=f"{row.method}/train")
+                        seed=seeds[0], fingerprints=fps, label=f"{row.method}/train",
+                        threads=scale.threads, plugins=(method_module, b.module))
             rp.train[bi] = train
             ms = []
             for r, s in enumerate(seeds):
                 gen = Job("generate", f"{STEPS}:generate",
                           {**base, "replicate": r, "need": sorted(set(b.metrics.values()))},
                           inputs=(train,), seed=s, fingerprints=fps,
-                          label=f"{row.method}/generate/r{r}")
+                          label=f"{row.method}/generate/r{r}", threads=scale.threads,
+                          plugins=(method_module, b.module))
                 ms.append(Job("measure", f"{STEPS}:measure", {**base, "evaluator": b.evaluator},
                               inputs=(gen,), seed=s,
                               fingerprints={**fps, "evaluator": b.evaluator_key},
-                              label=f"{row.id}/measure/r{r}"))
+                              label=f"{row.id}/measure/r{r}", threads=scale.threads,
+                              plugins=(b.module,)))
             rp.measures[bi] = ms
         if not rp.measures and rp.status == OK:
             rp.status = NOT_IMPLEMENTED

@@ -8,7 +8,9 @@ Three profiles, each a table of the TOML file:
 
 A profile holds a default data set (the spec's ``standin_dataset`` when absent; ``--dataset``
 overrides both), the replicate count and seed base, bootstrap resamples, per-protocol settings
-(sample counts; a protocol table may override ``replicates``), evaluator settings (validated by
+(sample counts; a protocol table may override ``replicates``), the CPU ``threads`` every job
+computes with (fixed, so that a job's bytes do not depend on ``--jobs`` or on the machine's core
+count: the count changes float reductions, hence trained weights), evaluator settings (validated by
 :mod:`repro.eval.settings`) and one free table per method (``[quick.methods.marionet]``) whose
 keys the method modules validate themselves.
 
@@ -48,6 +50,9 @@ class ScaleProfile(BaseModel):
     replicates: int = Field(ge=1, description="independent replicates (seeds) per cell")
     seed_base: int = Field(0, ge=0, description="replicate i uses seed seed_base + i")
     bootstrap_resamples: int = Field(ge=100, description="resamples of our bootstrap intervals")
+    threads: int = Field(1, ge=1, le=256, description=(
+        "torch/BLAS CPU threads each job of a table computes with; part of every job key, "
+        "because float reductions (hence trained weights) depend on the count"))
     protocols: dict[str, dict[str, Value]] = Field(default_factory=dict)
     evaluator: dict[str, Value] = Field(default_factory=dict)
     methods: dict[str, dict[str, Value]] = Field(default_factory=dict)
@@ -106,6 +111,7 @@ class ResolvedScale:
     replicates: int
     seed_base: int
     bootstrap_resamples: int
+    threads: int
     source: str
     _payload: bytes  # canonical JSON of protocols / evaluator / methods
 
@@ -164,7 +170,8 @@ class ResolvedScale:
         return {
             "name": self.name, "version": self.version, "dataset": self.dataset,
             "replicates": self.replicates, "seed_base": self.seed_base,
-            "bootstrap_resamples": self.bootstrap_resamples, **json.loads(self._payload),
+            "bootstrap_resamples": self.bootstrap_resamples, "threads": self.threads,
+            **json.loads(self._payload),
         }
 
     @property
@@ -205,7 +212,8 @@ def resolve_scale(name: str, dataset: str | None = None, *, path: str | Path | N
     return ResolvedScale(
         name=name, version=sf.version, description=prof.description,
         dataset=dataset or prof.dataset, replicates=prof.replicates, seed_base=prof.seed_base,
-        bootstrap_resamples=prof.bootstrap_resamples, source=str(path), _payload=payload,
+        bootstrap_resamples=prof.bootstrap_resamples, threads=prof.threads, source=str(path),
+        _payload=payload,
     )
 
 

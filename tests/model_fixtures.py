@@ -1,0 +1,38 @@
+"""Fixtures shared by the model tests (test_marionet.py, test_baselines.py): one torch thread
+for the module, and a small synthetic clip set with its train and test action items.
+
+Import them by name (``from model_fixtures import clips, items, test_items, one_torch_thread``);
+``one_torch_thread`` is autouse, so importing it is enough."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from repro.data.clipset import TEST, TRAIN
+from repro.models.items import build_items
+from test_items import synthetic_clipset
+
+
+@pytest.fixture(autouse=True, scope="module")
+def one_torch_thread():
+    """Tiny ops: thread hand-offs cost more than they save; the caller's count is restored."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+@pytest.fixture(scope="module")
+def clips():
+    return synthetic_clipset(n_per_class=6, min_len=14, max_len=26)
+
+
+@pytest.fixture(scope="module")
+def items(clips):
+    return build_items(clips, TRAIN)
+
+
+@pytest.fixture(scope="module")
+def test_items(clips):
+    return build_items(clips, TEST)
