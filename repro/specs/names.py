@@ -212,18 +212,33 @@ def unknown_name_message(kind: str, name: str, choices=None) -> str:
     return f"unknown {kind} {name!r}{suggest(name, choices)}"
 
 
+def require_known(kind: str, name: str) -> str:
+    """``name`` if it is in the ``kind`` vocabulary, else ``ValueError`` with the did-you-mean
+    message (the form pydantic validators raise; :func:`check_name` raises a SpecError)."""
+    if name not in _vocab(kind):
+        raise ValueError(unknown_name_message(kind, name))
+    return name
+
+
+def require_standin(name: str) -> str:
+    """``name`` if it is a known stand-in data set, else ``ValueError``."""
+    require_known("dataset", name)
+    if not DATASETS[name].standin:
+        raise ValueError(f"{name!r} is a paper data set, not a stand-in "
+                         f"(choose from {', '.join(standin_datasets())})")
+    return name
+
+
 def check_name(kind: str, name: str, *, file=None, location: str | None = None,
                standin_only: bool = False) -> str:
-    """Return ``name`` if it is in the ``kind`` vocabulary, else raise a :class:`SpecError`
-    with a did-you-mean suggestion naming ``file`` and ``location``."""
-    vocab = _vocab(kind)
-    if name not in vocab:
-        raise SpecError(unknown_name_message(kind, name), file, location)
-    if standin_only and not vocab[name].standin:
-        standins = [d for d, info in DATASETS.items() if info.standin]
-        raise SpecError(f"{name!r} is a paper data set, not a stand-in "
-                        f"(choose from {', '.join(standins)})", file, location)
-    return name
+    """Return ``name`` if it is in the ``kind`` vocabulary (and a stand-in data set, with
+    ``standin_only``), else raise a :class:`SpecError` with a did-you-mean suggestion naming
+    ``file`` and ``location``."""
+    try:
+        require_known(kind, name)
+        return require_standin(name) if standin_only else name
+    except ValueError as e:
+        raise SpecError(str(e), file, location) from None
 
 
 def standin_datasets() -> tuple[str, ...]:

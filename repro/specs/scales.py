@@ -32,6 +32,7 @@ from repro.errors import ConfigError
 from repro.keys import canonical_json, content_key
 from repro.paths import tables_root
 from repro.specs import names
+from repro.specs.schema import DatasetName
 
 SCALE_NAMES = ("quick", "medium", "paper")
 
@@ -46,7 +47,8 @@ class ScaleProfile(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     description: str = Field(min_length=3)
-    dataset: str | None = Field(None, description="default data set; None = the spec's stand-in")
+    dataset: DatasetName | None = Field(None, description="default data set; None = the spec's "
+                                       "stand-in")
     replicates: int = Field(ge=1, description="independent replicates (seeds) per cell")
     seed_base: int = Field(0, ge=0, description="replicate i uses seed seed_base + i")
     bootstrap_resamples: int = Field(ge=100, description="resamples of our bootstrap intervals")
@@ -57,19 +59,11 @@ class ScaleProfile(BaseModel):
     evaluator: dict[str, Value] = Field(default_factory=dict)
     methods: dict[str, dict[str, Value]] = Field(default_factory=dict)
 
-    @field_validator("dataset")
-    @classmethod
-    def _known_dataset(cls, v):
-        if v is not None and v not in names.DATASETS:
-            raise ValueError(names.unknown_name_message("dataset", v))
-        return v
-
     @field_validator("protocols")
     @classmethod
     def _known_protocols(cls, v: dict):
         for p, table in v.items():
-            if p not in names.PROTOCOLS:
-                raise ValueError(names.unknown_name_message("protocol", p))
+            names.require_known("protocol", p)
             r = table.get("replicates")
             if r is not None and (not isinstance(r, int) or isinstance(r, bool) or r < 1):
                 raise ValueError(f"protocols.{p}.replicates must be an integer ≥ 1 (got {r!r})")
@@ -79,8 +73,7 @@ class ScaleProfile(BaseModel):
     @classmethod
     def _known_methods(cls, v: dict):
         for m in v:
-            if m not in names.METHODS:
-                raise ValueError(names.unknown_name_message("method", m))
+            names.require_known("method", m)
         return v
 
 

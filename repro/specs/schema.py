@@ -15,9 +15,11 @@ loader runs after the model validates.  The format is described in ``docs/specs.
 from __future__ import annotations
 
 import re
+from functools import partial
 from typing import Annotated, Any, Literal, Union
 
 from pydantic import (
+    AfterValidator,
     BaseModel,
     ConfigDict,
     Field,
@@ -34,6 +36,16 @@ from repro.keys import content_key
 from repro.specs import names
 
 SCHEMA_VERSION = 1
+
+# Names checked against the vocabularies of repro.specs.names ("unknown method 'marionett' (did
+# you mean 'marionet'?)"); one validator per kind, used by every model here and in scales.py.
+PaperName = Annotated[str, AfterValidator(partial(names.require_known, "paper"))]
+DatasetName = Annotated[str, AfterValidator(partial(names.require_known, "dataset"))]
+StandinName = Annotated[str, AfterValidator(names.require_standin)]
+MethodName = Annotated[str, AfterValidator(partial(names.require_known, "method"))]
+MetricName = Annotated[str, AfterValidator(partial(names.require_known, "metric"))]
+ProtocolName = Annotated[str, AfterValidator(partial(names.require_known, "protocol"))]
+IntervalName = Annotated[str, AfterValidator(partial(names.require_known, "interval"))]
 
 Scalar = Union[StrictBool, StrictInt, StrictFloat, StrictStr]
 ParamValue = Union[Scalar, list[Scalar]]
@@ -80,20 +92,13 @@ class _Strict(BaseModel):
 class PaperRef(_Strict):
     """Which paper and which of its tables or figures the spec reproduces."""
 
-    key: str = Field(description="paper key: marionette | multiact | odmo")
+    key: PaperName = Field(description="paper key: marionette | multiact | odmo")
     title: str = Field(min_length=3)
     file: str = Field(description="text extraction in ../shared/papers/ the numbers come from")
     table_label: str = Field(min_length=3, description="as the paper labels it: 'Table 3', 'Fig. 8'")
     caption: str = Field(min_length=8, description="a verbatim fragment of the caption as extracted "
                          "(locates the table in the text file)")
     section: str | None = Field(None, description="the section that discusses the table")
-
-    @field_validator("key")
-    @classmethod
-    def _known_paper(cls, v: str) -> str:
-        if v not in names.PAPERS:
-            raise ValueError(names.unknown_name_message("paper", v))
-        return v
 
 
 class Axis(_Strict):
@@ -117,31 +122,19 @@ class ColumnGroup(_Strict):
 
     id: str = Field(pattern=r"^[a-z0-9][a-z0-9_]*$")
     label: str
-    protocol: str | None = Field(None, description="overrides the table's protocol for this band")
-    paper_dataset: str | None = Field(None, description="overrides the table's paper data set")
+    protocol: ProtocolName | None = Field(None, description="overrides the table's protocol for "
+                                          "this band")
+    paper_dataset: DatasetName | None = Field(None, description="overrides the table's paper "
+                                              "data set")
     protocol_params: Params = Field(default_factory=dict)
     note: str | None = None
-
-    @field_validator("protocol")
-    @classmethod
-    def _known_protocol(cls, v):
-        if v is not None and v not in names.PROTOCOLS:
-            raise ValueError(names.unknown_name_message("protocol", v))
-        return v
-
-    @field_validator("paper_dataset")
-    @classmethod
-    def _known_dataset(cls, v):
-        if v is not None and v not in names.DATASETS:
-            raise ValueError(names.unknown_name_message("dataset", v))
-        return v
 
 
 class Column(_Strict):
     """One measured column: a metric, its direction and unit (defaults from the metric)."""
 
     id: str = Field(pattern=COLUMN_ID, description="'<group>.<name>' inside a group, else '<name>'")
-    metric: str
+    metric: MetricName
     label: str = Field(description="the column header as the paper prints it")
     direction: Literal["lower", "higher", "closer_to_real"] | None = Field(
         None, description="default: the metric's direction")
@@ -149,13 +142,6 @@ class Column(_Strict):
     reference: str | None = Field(None, description="closer_to_real columns: the row that is 'real'"
                                   " (default: the only row whose method is 'real')")
     note: str | None = None
-
-    @field_validator("metric")
-    @classmethod
-    def _known_metric(cls, v: str) -> str:
-        if v not in names.METRICS:
-            raise ValueError(names.unknown_name_message("metric", v))
-        return v
 
     @model_validator(mode="after")
     def _defaults(self):
@@ -246,27 +232,14 @@ class Row(_Strict):
 
     id: str = Field(pattern=ROW_ID)
     label: str = Field(description="the row label as the paper prints it")
-    method: str
+    method: MethodName
     overrides: Params = Field(default_factory=dict, description="variant settings, e.g. "
                               "time_unrolling = false; keys are validated by the method")
-    interval: str | None = Field(None, description="this row's ± convention when it differs from "
-                                 "the table's (a row copied from another paper)")
+    interval: IntervalName | None = Field(None, description="this row's ± convention when it "
+                                          "differs from the table's (a row copied from another "
+                                          "paper)")
     reported: dict[str, ReportedCell] = Field(default_factory=dict)
     note: str | None = None
-
-    @field_validator("method")
-    @classmethod
-    def _known_method(cls, v: str) -> str:
-        if v not in names.METHODS:
-            raise ValueError(names.unknown_name_message("method", v))
-        return v
-
-    @field_validator("interval")
-    @classmethod
-    def _known_interval(cls, v):
-        if v is not None and v not in names.INTERVALS:
-            raise ValueError(names.unknown_name_message("interval", v))
-        return v
 
     @field_validator("reported", mode="before")
     @classmethod
@@ -387,10 +360,10 @@ class TableSpec(_Strict):
     kind: Literal["table", "figure"] = "table"
     paper: PaperRef
     title: str = Field(min_length=3)
-    protocol: str
-    paper_dataset: str
-    standin_dataset: str
-    interval: str = Field(description="the paper's ± convention for this table")
+    protocol: ProtocolName
+    paper_dataset: DatasetName
+    standin_dataset: StandinName
+    interval: IntervalName = Field(description="the paper's ± convention for this table")
     x: Axis | None = Field(None, description="figures: the x axis of the curves")
     groups: list[ColumnGroup] = Field(default_factory=list)
     columns: Annotated[list[Column], Field(min_length=1)]
@@ -400,37 +373,6 @@ class TableSpec(_Strict):
                                     "this table (test set, windows, its sample counts); the scale "
                                     "profile's protocol table overrides keys it also sets")
     note: str | None = None
-
-    @field_validator("protocol")
-    @classmethod
-    def _known_protocol(cls, v: str) -> str:
-        if v not in names.PROTOCOLS:
-            raise ValueError(names.unknown_name_message("protocol", v))
-        return v
-
-    @field_validator("paper_dataset")
-    @classmethod
-    def _known_paper_dataset(cls, v: str) -> str:
-        if v not in names.DATASETS:
-            raise ValueError(names.unknown_name_message("dataset", v))
-        return v
-
-    @field_validator("standin_dataset")
-    @classmethod
-    def _known_standin(cls, v: str) -> str:
-        if v not in names.DATASETS:
-            raise ValueError(names.unknown_name_message("dataset", v))
-        if not names.DATASETS[v].standin:
-            raise ValueError(f"{v!r} is a paper data set, not a stand-in "
-                             f"(choose from {', '.join(names.standin_datasets())})")
-        return v
-
-    @field_validator("interval")
-    @classmethod
-    def _known_interval(cls, v: str) -> str:
-        if v not in names.INTERVALS:
-            raise ValueError(names.unknown_name_message("interval", v))
-        return v
 
     # -- identity --------------------------------------------------------------------------
 
