@@ -25,6 +25,9 @@ def register(sub) -> None:
     _common(p)
     p.add_argument("--why", action="store_true", help="for a miss, say which part of the key changed")
     p.add_argument("--seeds", default=None, help="replicate seeds, e.g. 0-9 or 0,3,7 (default: the scale's)")
+    p.add_argument("--retrain", action="store_true",
+                   help="train one model per replicate (training seed = replicate seed), so the "
+                   "intervals include training-seed variance (R x the training cost)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_plan)
 
@@ -40,6 +43,9 @@ def register(sub) -> None:
                    help="recompute everything, or only jobs of KIND (train, generate, measure, ...)")
     p.add_argument("--seeds", default=None, help="replicate seeds, e.g. 0-9 or 0,3,7 (default: the "
                    "scale's); the first is also the training seed")
+    p.add_argument("--retrain", action="store_true",
+                   help="train one model per replicate (training seed = replicate seed), so the "
+                   "intervals include training-seed variance (R x the training cost)")
     p.add_argument("--format", default="term", help="term | md | latex | html | json | csv")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_run)
@@ -97,7 +103,8 @@ def cmd_plan(args) -> int:
     from repro.engine.tables import parse_seeds
 
     entries = plan_table(args.table, scale=args.scale, dataset=args.dataset, why=args.why,
-                         seeds=parse_seeds(args.seeds) if args.seeds else None)
+                         seeds=parse_seeds(args.seeds) if args.seeds else None,
+                         retrain=args.retrain)
     if args.json:
         print(json.dumps(entries, indent=2))
         return 0
@@ -121,7 +128,8 @@ def cmd_run(args) -> int:
     rc = 0
     runs = run_tables(args.tables, scale=args.scale, dataset=args.dataset, jobs=args.jobs,
                       force=args.force, progress=not args.quiet and sys.stderr.isatty(),
-                      seeds=parse_seeds(args.seeds) if args.seeds else None)
+                      seeds=parse_seeds(args.seeds) if args.seeds else None,
+                      retrain=args.retrain)
     for plan, summary, run_id in runs:
         name = plan.spec.id
         counts = summary.get("counts", {})
@@ -176,7 +184,7 @@ def cmd_verify(args) -> int:
         if args.update:
             sc = _scale(args.scale, args.dataset)
             ds = args.dataset or sc.dataset_for(spec)
-            path = latest_run(spec.id, sc.name, ds)
+            path = latest_run(spec.id, sc.name, ds, retrain=False)  # baselines: one model per row
             if path is None:
                 raise ConfigError(f"no finished run of {spec.id} at scale {sc.name} to write a baseline from")
             summary = _json.loads((path / "summary.json").read_text())

@@ -40,9 +40,15 @@ def _footer(plan, evaluators: dict[str, Any], run_id: str | None) -> list[str]:
     if plan.dataset != spec.paper_dataset:
         lines.append(f"Data: STAND-IN {plan.dataset} (the paper used {spec.paper_dataset}); "
                      "numbers are not comparable in absolute value, only in ordering and gaps.")
-    lines.append(f"Scale: {scale.name} ({scale.description}); replicates: {len(plan.seeds)} "
-                 f"sampling passes of one trained model per row (seeds {list(plan.seeds)}); "
-                 "training-seed variance is not inside the intervals.")
+    if plan.retrain:
+        lines.append(f"Scale: {scale.name} ({scale.description}); replicates: {len(plan.seeds)} "
+                     f"independent trainings of each row's model, one sampling pass each (seeds "
+                     f"{list(plan.seeds)}, --retrain); the intervals include training-seed "
+                     "variance.")
+    else:
+        lines.append(f"Scale: {scale.name} ({scale.description}); replicates: {len(plan.seeds)} "
+                     f"sampling passes of one trained model per row (seeds {list(plan.seeds)}); "
+                     "training-seed variance is not inside the intervals (--retrain puts it in).")
     lines.append(f"Paper ±: {INTERVAL_DESCRIPTIONS.get(spec.interval, spec.interval)}; ours: mean "
                  f"±(paper convention) [95% percentile bootstrap over replicates, "
                  f"B={scale.bootstrap_resamples}].")
@@ -123,16 +129,18 @@ def _real_rows(e: dict, evaluator_key: str, ev, clips) -> dict:
 
 def run_table(name: str, *, scale: str = "quick", dataset: str | None = None, jobs: int = 1,
               force: Any = None, progress: bool = True,
-              seeds: tuple[int, ...] | None = None) -> tuple[Any, dict, str]:
+              seeds: tuple[int, ...] | None = None, retrain: bool = False) -> tuple[Any, dict, str]:
     """Run one table; returns (plan, summary, run_id).  ``seeds`` replaces the profile's
-    replicate seeds (the first one is also the training seed)."""
+    replicate seeds (the first one is also the training seed); ``retrain`` trains one model
+    per replicate (:func:`repro.engine.tables.build_plan`)."""
     return run_tables([name], scale=scale, dataset=dataset, jobs=jobs, force=force,
-                      progress=progress, seeds=seeds)[0]
+                      progress=progress, seeds=seeds, retrain=retrain)[0]
 
 
 def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = None,
                jobs: int = 1, force: Any = None, progress: bool = True,
-               seeds: tuple[int, ...] | None = None) -> list[tuple[Any, dict, str]]:
+               seeds: tuple[int, ...] | None = None,
+               retrain: bool = False) -> list[tuple[Any, dict, str]]:
     """Run several tables as one job graph; one (plan, summary, run_id) per distinct name.
 
     Every spec is resolved first (a typo stops before anything is computed); each table gets
@@ -146,7 +154,7 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
 
     sc = _scale(scale, dataset)
     specs = list({s.id: s for s in (_spec(n) for n in names)}.values())
-    plans = [build_plan(spec, sc, dataset, seeds) for spec in specs]
+    plans = [build_plan(spec, sc, dataset, seeds, retrain) for spec in specs]
     out = []
     with ExitStack() as stack:
         recs = [stack.enter_context(RunRecorder(
@@ -255,8 +263,10 @@ def _execute_plans(plans: list, recorders: list, *, jobs: int, force: Any,
     return out
 
 
-def latest_run(table: str, scale: str | None = None, dataset: str | None = None) -> Path | None:
-    """The newest FINISHED run folder of ``table`` (optionally for a scale / data set)."""
+def latest_run(table: str, scale: str | None = None, dataset: str | None = None,
+               retrain: bool | None = None) -> Path | None:
+    """The newest FINISHED run folder of ``table`` (optionally for a scale / data set, and
+    made with or without ``--retrain``)."""
     from repro.store.runs import FINISHED, read_run_json, run_dirs
 
     for d in reversed(run_dirs()):
@@ -269,6 +279,8 @@ def latest_run(table: str, scale: str | None = None, dataset: str | None = None)
         if scale is not None and rj.get("scale") != scale:
             continue
         if dataset is not None and rj.get("dataset") != dataset:
+            continue
+        if retrain is not None and bool((rj.get("config") or {}).get("retrain")) != retrain:
             continue
         return d
     return None
@@ -302,13 +314,14 @@ def _before_run(status: str) -> str:
 
 
 def plan_table(name: str, *, scale: str = "quick", dataset: str | None = None, why: bool = False,
-               force: Any = None, seeds: tuple[int, ...] | None = None) -> list[dict]:
+               force: Any = None, seeds: tuple[int, ...] | None = None,
+               retrain: bool = False) -> list[dict]:
     """What a run would do: each job with its key, cached or not, and (``why``) what changed."""
     from repro.engine.plan import plan as plan_jobs
     from repro.engine.tables import build_plan
 
     spec = _spec(name)
-    plan = build_plan(spec, _scale(scale, dataset), dataset, seeds)
+    plan = build_plan(spec, _scale(scale, dataset), dataset, seeds, retrain)
     entries = plan_jobs(plan.jobs(), force=force, why=why)
     out = [{"job": e.job.name if hasattr(e.job, "name") else e.job.label, "kind": e.job.kind,
             "key": e.key[:12], "cached": e.cached, "why": getattr(e, "why", None)} for e in entries]
@@ -321,12 +334,13 @@ def plan_table(name: str, *, scale: str = "quick", dataset: str | None = None, w
 
 def verify_table(name: str, baseline_dir: str | Path, *, scale: str = "quick",
                  dataset: str | None = None) -> list[str]:
-    """Compare the newest run of ``name`` with a committed baseline; returns the problems."""
+    """Compare the newest run of ``name`` with a committed baseline; returns the problems.
+    Baselines are made from runs without ``--retrain``, so only those are compared."""
     from repro.engine.baselines import compare, load_baseline
 
     spec = _spec(name)
     sc = _scale(scale, dataset)
-    path = latest_run(spec.id, sc.name, dataset or sc.dataset_for(spec))
+    path = latest_run(spec.id, sc.name, dataset or sc.dataset_for(spec), retrain=False)
     if path is None:
         raise ConfigError(f"no finished run of {spec.id} at scale {sc.name}; run "
                           f"`repro run {spec.id} --scale {sc.name}` first")

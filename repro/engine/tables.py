@@ -12,7 +12,8 @@ two tables (the full MarioNet serves Tables 1, 2 and 4) run once.
 
 Replicates (a choice the papers' reference code also makes): a replicate is an independent
 sampling pass of one trained model, with seed ``seed_base + i``; training-seed variance is not
-inside the interval, and every report says so.
+inside the interval, and every report says so.  ``retrain`` (``repro run --retrain``) gives each
+replicate its own training (seed ``seed_base + i``), so the interval does include it.
 
 Aggregation keeps every raw replicate value (``values.jsonl``) and summarises each cell with
 the paper-style ± of the spec's interval convention beside our bootstrap interval
@@ -78,7 +79,7 @@ class RowPlan:
     method: str
     status: str = OK
     reason: str | None = None
-    train: dict[int, Job] = field(default_factory=dict)          # band index -> train job
+    train: dict[int, list[Job]] = field(default_factory=dict)    # band index -> train job(s)
     measures: dict[int, list[Job]] = field(default_factory=dict)  # band index -> per replicate
 
 
@@ -92,6 +93,7 @@ class TablePlan:
     seeds: tuple[int, ...]
     bands: list[Band]
     rows: list[RowPlan]
+    retrain: bool = False  # one training per replicate (build_plan)
 
     def jobs(self) -> list[Job]:
         out: list[Job] = []
@@ -104,6 +106,7 @@ class TablePlan:
     def config(self) -> dict:
         """The resolved configuration recorded in run.json."""
         return {"scale": self.scale.to_dict(), "dataset": self.dataset, "seeds": list(self.seeds),
+                "retrain": self.retrain,
                 "data_fingerprint": self.data_fingerprint,
                 "bands": [{"protocol": b.protocol, "params": b.params, "columns": b.columns,
                            "implemented": b.implemented, "evaluator": b.evaluator,
@@ -170,9 +173,14 @@ def parse_seeds(text: str) -> tuple[int, ...]:
     return tuple(out)
 
 
-def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] | None = None) -> TablePlan:
+def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] | None = None,
+               retrain: bool = False) -> TablePlan:
     """Everything a run of ``spec`` at ``scale`` would do (no training; the data set is only
-    opened, memory-mapped, for the fingerprint of the evaluator's training split)."""
+    opened, memory-mapped, for the fingerprint of the evaluator's training split).
+
+    A replicate is a sampling pass of one trained model per row; with ``retrain`` each
+    replicate also trains its own model (training seed = the replicate's seed), so the
+    intervals include training-seed variance, at R times the training cost."""
     from repro.eval.protocols import get_protocol, is_implemented
     from repro.eval.provider import evaluator_key
     from repro.eval.settings import resolve_settings
@@ -200,7 +208,7 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
             clips = clips or clipset(dataset)
             b.evaluator_key = evaluator_key(proto.evaluator_kind, settings,
                                             evaluator_clipset(proto, clips).fingerprint, 0)
-    plan = TablePlan(spec, scale, dataset, fp, missing, seeds, bands, [])
+    plan = TablePlan(spec, scale, dataset, fp, missing, seeds, bands, [], retrain=bool(retrain))
     for row in spec.rows:
         rp = RowPlan(row.id, row.method)
         plan.rows.append(rp)
@@ -233,16 +241,23 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
                         plugins=(b.module,))
                     for r, s in enumerate(seeds)]
                 continue
-            train = Job("train", f"{STEPS}:train_method",
-                        {**base, "method": row.method, "method_config": mcfg},
-                        seed=seeds[0], fingerprints=fps, label=f"{row.method}/train",
-                        threads=scale.threads, plugins=(method_module, b.module))
-            rp.train[bi] = train
+            def train_job(seed):
+                return Job("train", f"{STEPS}:train_method",
+                           {**base, "method": row.method, "method_config": mcfg},
+                           seed=seed, fingerprints=fps,
+                           label=f"{row.method}/train"
+                           + ("" if seed == seeds[0] else f"/s{seed}"),
+                           threads=scale.threads, plugins=(method_module, b.module))
+
+            # one model per row (its seed = the first replicate seed), or with ``retrain`` one
+            # per replicate (seed = the replicate's): the first is the same job either way
+            trains = [train_job(s) for s in (seeds if retrain else seeds[:1])]
+            rp.train[bi] = trains
             ms = []
             for r, s in enumerate(seeds):
                 gen = Job("generate", f"{STEPS}:generate",
                           {**base, "replicate": r, "need": sorted(set(b.metrics.values()))},
-                          inputs=(train,), seed=s, fingerprints=fps,
+                          inputs=(trains[r if retrain else 0],), seed=s, fingerprints=fps,
                           label=f"{row.method}/generate/r{r}", threads=scale.threads,
                           plugins=(method_module, b.module))
                 ms.append(Job("measure", f"{STEPS}:measure", {**base, "evaluator": b.evaluator},
