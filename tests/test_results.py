@@ -1,6 +1,9 @@
 """The committed results (docs/results.md): the medium-scale run records under
 docs/results/medium/, the baselines made from them (tables/baselines/medium/) and the tables the
-page prints all agree, so the page cannot drift from the records nor the records be edited."""
+page prints all agree, so the page cannot drift from the records nor the records be edited.
+The quick records under docs/results/quick/ (one Table 1 run with sampling replicates, the CI
+baseline's, and one with --retrain) are held to the same page and, the first, to
+tables/baselines/quick/."""
 
 from __future__ import annotations
 
@@ -15,6 +18,7 @@ from repro.paths import repo_root
 
 RESULTS = repo_root() / "docs" / "results"
 RUNS = sorted(p for p in (RESULTS / "medium").iterdir() if (p / "summary.json").is_file())
+QUICK = sorted(p for p in (RESULTS / "quick").iterdir() if (p / "summary.json").is_file())
 
 
 def _run(path: Path) -> tuple[dict, dict]:
@@ -54,13 +58,39 @@ def test_results_page_prints_the_records(tmp_path, monkeypatch):
     from repro.report import render
 
     home = tmp_path / "home"
-    for p in RUNS:
+    for p in RUNS + QUICK:
         shutil.copytree(p, home / "runs" / p.name)
     monkeypatch.setenv("REPRO_HOME", str(home))
     page = [ln.rstrip() for ln in (repo_root() / "docs" / "results.md").read_text().splitlines()]
     text = "\n".join(page)
-    for p in RUNS:
+    for p in RUNS + QUICK:
         rj, _ = _run(p)
-        md = render(table_view(rj["table"], scale="medium", run=rj["run_id"]), "md")
+        md = render(table_view(rj["table"], scale=rj["scale"], run=rj["run_id"]), "md")
         block = "\n".join(ln.rstrip() for ln in md.strip().splitlines())
         assert block in text, f"docs/results.md does not show run {rj['run_id']} as rendered"
+
+
+def test_quick_records_one_model_per_row_and_retrain():
+    """The two quick Table 1 records: the CI baseline's run (sampling replicates) and a
+    --retrain run whose replicates are separate trainings, the first one shared."""
+    (plain, ps), (retrain, rs) = sorted((_run(p) for p in QUICK),
+                                        key=lambda r: bool(r[0]["config"].get("retrain")))
+    assert {plain["table"], retrain["table"]} == {"marionette/table1"}
+    assert not plain["config"].get("retrain") and retrain["config"]["retrain"] is True
+    base = load_baseline(repo_root() / "tables" / "baselines" / "quick", "marionette/table1")
+    assert base["run"] == plain["run_id"] and compare(base, ps) == []
+    assert any("independent trainings" in line for line in rs["footer"])
+    trains = {j["label"]: j["key"] for r in (plain, retrain) for j in r["jobs"]
+              if j["kind"] == "train"}
+    assert "marionet/train/s1" in trains and "marionet/train/s2" in trains
+    # replicate 0 is the same computation in both (training seed 0, sampling seed 0): its
+    # values are bitwise equal (the keys differ: a refactor of spec validation came between)
+    def values(run):
+        path = RESULTS / "quick" / run["run_id"] / "values.jsonl"
+        return {(v["row"], v["column"], v["replicate"]): v["value"]
+                for v in map(json.loads, path.read_text().splitlines())}
+
+    a, b = values(plain), values(retrain)
+    first = [k for k in a if k[2] == 0]
+    assert len(first) == 29 and all(a[k] == b[k] for k in first)
+    assert any(a[k] != b[k] for k in a if k[2] > 0 and k[0] == "marionet")
