@@ -19,6 +19,7 @@ from repro.paths import repo_root
 RESULTS = repo_root() / "docs" / "results"
 RUNS = sorted(p for p in (RESULTS / "medium").iterdir() if (p / "summary.json").is_file())
 QUICK = sorted(p for p in (RESULTS / "quick").iterdir() if (p / "summary.json").is_file())
+RERUN = sorted(p for p in (RESULTS / "medium-rerun").iterdir() if (p / "summary.json").is_file())
 
 
 def _run(path: Path) -> tuple[dict, dict]:
@@ -58,12 +59,12 @@ def test_results_page_prints_the_records(tmp_path, monkeypatch):
     from repro.report import render
 
     home = tmp_path / "home"
-    for p in RUNS + QUICK:
+    for p in RUNS + QUICK + RERUN:
         shutil.copytree(p, home / "runs" / p.name)
     monkeypatch.setenv("REPRO_HOME", str(home))
     page = [ln.rstrip() for ln in (repo_root() / "docs" / "results.md").read_text().splitlines()]
     text = "\n".join(page)
-    for p in RUNS + QUICK:
+    for p in RUNS + QUICK + RERUN:
         rj, _ = _run(p)
         md = render(table_view(rj["table"], scale=rj["scale"], run=rj["run_id"]), "md")
         block = "\n".join(ln.rstrip() for ln in md.strip().splitlines())
@@ -94,3 +95,30 @@ def test_quick_records_one_model_per_row_and_retrain():
     first = [k for k in a if k[2] == 0]
     assert len(first) == 29 and all(a[k] == b[k] for k in first)
     assert any(a[k] != b[k] for k in a if k[2] > 0 and k[0] == "marionet")
+
+
+def test_medium_rerun_is_a_second_sample_of_the_same_tables():
+    """The session-3 rerun: same tables, data and seeds as the reference records, its cells the
+    means of its raw values; the nearest-clip reference, which trains nothing, has the same
+    evaluator-free Δtraj values bit for bit (what differs between the two hosts is float
+    rounding in training)."""
+    ref = {_run(p)[0]["table"]: p for p in RUNS}
+    assert {_run(p)[0]["table"] for p in RERUN} == set(ref)
+    for path in RERUN:
+        rj, summary = _run(path)
+        old, _ = _run(ref[rj["table"]])
+        assert rj["status"] == "FINISHED" and rj["scale"] == "medium"
+        assert rj["config"]["data_fingerprint"] == old["config"]["data_fingerprint"]
+        assert rj["config"]["seeds"] == old["config"]["seeds"] == [0, 1, 2, 3, 4]
+        if rj["table"] == "marionette/table1":
+            def traj(p):
+                return [v["value"] for v in map(json.loads, (p / "values.jsonl").read_text()
+                                                .splitlines())
+                        if v["row"] == "nearest_clip" and v["column"] == "traj_err"]
+            assert traj(path) == traj(ref[rj["table"]]) and len(traj(path)) == 5
+        raw = {}
+        for v in map(json.loads, (path / "values.jsonl").read_text().splitlines()):
+            raw.setdefault((v["row"], v["column"]), []).append(v["value"])
+        for row, cols in summary["cells"].items():
+            for col, cell in cols.items():
+                assert sum(raw[(row, col)]) / cell["n"] == pytest.approx(cell["mean"], rel=1e-12)

@@ -44,6 +44,7 @@ def test_status_transitions_history_and_read_only_when_finished():
     assert run["schema"] == 1 and run["status"] == "QUEUED" and run["run_id"] == rec.run_id
     assert run["packages"]["numpy"] and run["packages"]["python"]
     assert run["env"]["device"] == "cpu" and run["env"]["pid"] == os.getpid()
+    assert set(run["env"]["cpu"]) == {"model", "cpus", "isa"} and run["env"]["cpu"]["cpus"] >= 1
     with pytest.raises(RuntimeError, match="cannot go from QUEUED to FINISHED"):
         rec.finish()
     rec.start()

@@ -97,6 +97,30 @@ def package_versions() -> dict[str, str | None]:
     return out
 
 
+# CPU features that decide which float kernels BLAS / oneDNN pick (and so the last bits of a
+# training): a run is bitwise reproducible only on a CPU with the same ones.
+_ISA_FLAGS = ("avx512f", "avx512_bf16", "avx512_vnni", "amx_tile", "avx2", "fma", "avx", "sse4_2")
+
+
+def cpu_info() -> dict[str, Any]:
+    """The CPU a run used: model name, logical CPUs and the float-relevant ISA flags (from
+    ``/proc/cpuinfo`` where there is one)."""
+    model, flags = platform.processor() or platform.machine(), set()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
+            for line in f:
+                key, _, value = line.partition(":")
+                key = key.strip()
+                if key == "model name":
+                    model = value.strip()
+                elif key == "flags":
+                    flags = set(value.split())
+                    break
+    except OSError:
+        pass
+    return {"model": model, "cpus": os.cpu_count(), "isa": [f for f in _ISA_FLAGS if f in flags]}
+
+
 def _proc_start(pid: int) -> str | None:
     """The process start time in clock ticks since boot (Linux), to tell a reused pid apart."""
     try:
@@ -201,7 +225,7 @@ class RunRecorder:
             "git": git_state(), "packages": package_versions(),
             "env": {"device": device, "dtype": dtype, "threads": threads,
                     "host": socket.gethostname(), "platform": platform.platform(),
-                    "pid": pid, "pid_start": _proc_start(pid)},
+                    "cpu": cpu_info(), "pid": pid, "pid_start": _proc_start(pid)},
             "command": list(command) if command is not None else list(sys.argv),
             "created": now, "started": None, "ended": None,
             "keys": {"read": [], "written": []}, "jobs": [], "error": None, "note": None,
