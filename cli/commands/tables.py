@@ -14,6 +14,12 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--dataset", default=None, help="override the scale profile's data set")
 
 
+def _retrain_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--retrain", action="store_true",
+                   help="train one model per replicate (training seed = replicate seed), so the "
+                   "intervals include training-seed variance (R x the training cost)")
+
+
 def register(sub) -> None:
     p = sub.add_parser("list", help="every table spec with its state")
     p.add_argument("--scale", default="quick")
@@ -25,9 +31,7 @@ def register(sub) -> None:
     _common(p)
     p.add_argument("--why", action="store_true", help="for a miss, say which part of the key changed")
     p.add_argument("--seeds", default=None, help="replicate seeds, e.g. 0-9 or 0,3,7 (default: the scale's)")
-    p.add_argument("--retrain", action="store_true",
-                   help="train one model per replicate (training seed = replicate seed), so the "
-                   "intervals include training-seed variance (R x the training cost)")
+    _retrain_option(p)
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_plan)
 
@@ -43,9 +47,7 @@ def register(sub) -> None:
                    help="recompute everything, or only jobs of KIND (train, generate, measure, ...)")
     p.add_argument("--seeds", default=None, help="replicate seeds, e.g. 0-9 or 0,3,7 (default: the "
                    "scale's); the first is also the training seed")
-    p.add_argument("--retrain", action="store_true",
-                   help="train one model per replicate (training seed = replicate seed), so the "
-                   "intervals include training-seed variance (R x the training cost)")
+    _retrain_option(p)
     p.add_argument("--format", default="term", help="term | md | latex | html | json | csv")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_run)

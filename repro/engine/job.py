@@ -90,11 +90,13 @@ class Job:
             raise ValueError(f"job threads must be an int >= 1 or None, got {self.threads!r}")
         if not isinstance(self.config, Mapping) or not isinstance(self.fingerprints, Mapping):
             raise ValueError("job config and fingerprints must be mappings")
-        plugins = () if isinstance(self.plugins, str) else tuple(self.plugins)
-        if isinstance(self.plugins, str) or not all(isinstance(m, str) and m and all(p.isidentifier() for p in m.split("."))
-                   for m in plugins):
+
+        def module_name(m) -> bool:
+            return isinstance(m, str) and all(p.isidentifier() for p in m.split("."))
+
+        if isinstance(self.plugins, str) or not all(map(module_name, self.plugins)):
             raise ValueError(f"job plugins must be module names, got {self.plugins!r}")
-        object.__setattr__(self, "plugins", tuple(sorted(set(plugins))))
+        object.__setattr__(self, "plugins", tuple(sorted(set(self.plugins))))
         object.__setattr__(self, "config", _plain(dict(self.config), "config"))
         object.__setattr__(self, "fingerprints", _plain(dict(self.fingerprints), "fingerprints"))
         inputs = tuple(self.inputs)

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 from repro.engine.job import Job
@@ -184,6 +185,7 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
     from repro.eval.protocols import get_protocol, is_implemented
     from repro.eval.provider import evaluator_key
     from repro.eval.settings import resolve_settings
+    from repro.models.base import generator_class
 
     dataset = dataset or scale.dataset_for(spec)
     fp, missing = _data_status(dataset)
@@ -209,6 +211,7 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
             b.evaluator_key = evaluator_key(proto.evaluator_kind, settings,
                                             evaluator_clipset(proto, clips).fingerprint, 0)
     plan = TablePlan(spec, scale, dataset, fp, missing, seeds, bands, [], retrain=bool(retrain))
+    job = partial(Job, threads=scale.threads)  # every table job computes with the profile's count
     for row in spec.rows:
         rp = RowPlan(row.id, row.method)
         plan.rows.append(rp)
@@ -224,8 +227,6 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
             if mcfg is None:
                 rp.status, rp.reason = NOT_IMPLEMENTED, why
                 continue
-            from repro.models.base import generator_class
-
             method_module = generator_class(row.method).__module__
         for bi, b in enumerate(bands):
             if not b.implemented:
@@ -234,20 +235,19 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
             fps = {"dataset": fp}
             if row.method == "real":
                 rp.measures[bi] = [
-                    Job("measure_real", f"{STEPS}:measure_real",
+                    job("measure_real", f"{STEPS}:measure_real",
                         {**base, "replicate": r, "evaluator": b.evaluator},
                         seed=s, fingerprints={**fps, "evaluator": b.evaluator_key},
-                        label=f"{row.id}/real/r{r}", threads=scale.threads,
-                        plugins=(b.module,))
+                        label=f"{row.id}/real/r{r}", plugins=(b.module,))
                     for r, s in enumerate(seeds)]
                 continue
             def train_job(seed):
-                return Job("train", f"{STEPS}:train_method",
+                return job("train", f"{STEPS}:train_method",
                            {**base, "method": row.method, "method_config": mcfg},
                            seed=seed, fingerprints=fps,
                            label=f"{row.method}/train"
                            + ("" if seed == seeds[0] else f"/s{seed}"),
-                           threads=scale.threads, plugins=(method_module, b.module))
+                           plugins=(method_module, b.module))
 
             # one model per row (its seed = the first replicate seed), or with ``retrain`` one
             # per replicate (seed = the replicate's): the first is the same job either way
@@ -255,16 +255,15 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
             rp.train[bi] = trains
             ms = []
             for r, s in enumerate(seeds):
-                gen = Job("generate", f"{STEPS}:generate",
+                gen = job("generate", f"{STEPS}:generate",
                           {**base, "replicate": r, "need": sorted(set(b.metrics.values()))},
                           inputs=(trains[r if retrain else 0],), seed=s, fingerprints=fps,
-                          label=f"{row.method}/generate/r{r}", threads=scale.threads,
+                          label=f"{row.method}/generate/r{r}",
                           plugins=(method_module, b.module))
-                ms.append(Job("measure", f"{STEPS}:measure", {**base, "evaluator": b.evaluator},
+                ms.append(job("measure", f"{STEPS}:measure", {**base, "evaluator": b.evaluator},
                               inputs=(gen,), seed=s,
                               fingerprints={**fps, "evaluator": b.evaluator_key},
-                              label=f"{row.id}/measure/r{r}", threads=scale.threads,
-                              plugins=(b.module,)))
+                              label=f"{row.id}/measure/r{r}", plugins=(b.module,)))
             rp.measures[bi] = ms
         if not rp.measures and rp.status == OK:
             rp.status = NOT_IMPLEMENTED
