@@ -40,12 +40,17 @@ def run(table: str, scale: str, jobs: int, home: Path) -> tuple[float, dict]:
     seconds = time.perf_counter() - t0
     if out.returncode != 0:
         sys.exit(f"bench_table_runs: {' '.join(cmd[2:])} exited {out.returncode}:\n{out.stderr}")
+    return seconds, newest_values(home)
+
+
+def newest_values(home: Path) -> dict:
+    """The replicate values {(row, column, replicate): v} of the newest run in ``home``."""
     newest = max((home / "runs").iterdir(), key=lambda p: p.name)
     values = {}
     for line in (newest / "values.jsonl").read_text().splitlines():
         rec = json.loads(line)
         values[(rec["row"], rec["column"], rec["replicate"])] = rec["value"]
-    return seconds, values
+    return values
 
 
 def main(argv=None) -> int:

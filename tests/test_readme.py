@@ -21,7 +21,7 @@ from repro.paths import find_bandai_archive, repo_root
 MODES = {
     "make setup": "ci",
     "make test": "ci",
-    "make table3": "fast",
+    "make table3": "slow",
     "make table1": "slow",
     "repro list": "fast",
     "repro plan marionette/table1 --why": "fast",

@@ -14,7 +14,8 @@ def register(subparsers) -> None:
     p.set_defaults(func=lambda args: (p.print_help(), 0)[1])
 
     pp = sub.add_parser("prepare", help="parse a data set's source into the local cache")
-    pp.add_argument("name", help="data set name (bandai2)")
+    pp.add_argument("name", help="data set name (bandai2) or sequence view (bandai2-seq, "
+                    "bandai2-seq-mini)")
     pp.add_argument("--source", help="the upstream archive or an extracted folder "
                     "(default: ../shared/data/bandai-namco-2/ or $REPRO_DATA)")
     pp.add_argument("--workers", type=int, default=2, help="parser processes (0: in-process)")
@@ -83,8 +84,11 @@ def _prepare_bandai(name: str, source, workers: int, force: bool):
 
 def _prepare(args: argparse.Namespace) -> int:
     from repro.data.registry import get_entry
+    from repro.data.sequences import SEQUENCE_VIEWS
     from repro.errors import ConfigError
 
+    if args.name in SEQUENCE_VIEWS:
+        return _prepare_view(args)
     entry = get_entry(args.name)
     if args.name == "bandai2-mini":
         raise ConfigError("bandai2-mini is bundled with the package; rebuild it with "
@@ -106,9 +110,34 @@ def _prepare(args: argparse.Namespace) -> int:
     return 0
 
 
+def _prepare_view(args: argparse.Namespace) -> int:
+    from repro.data.sequences import SEQUENCE_VIEWS, prepare_view
+    from repro.errors import ConfigError
+
+    if args.source:
+        raise ConfigError(f"{args.name} is composed from {SEQUENCE_VIEWS[args.name]} and takes no "
+                          f"--source (prepare {SEQUENCE_VIEWS[args.name]} with it instead)")
+    res = prepare_view(args.name)
+    if args.json:
+        print(json.dumps(res["card"], indent=1))
+        return 0
+    how = "already prepared" if res["reused"] else "prepared"
+    print(f"{args.name}: {how} in {res['seconds']:.1f} s -> {res['path']}")
+    _print_seq_card(res["card"], matrix=False)
+    return 0
+
+
 def _info(args: argparse.Namespace) -> int:
     from repro.data.registry import DATASETS, clipset_summary, get_entry
+    from repro.data.sequences import SEQUENCE_VIEWS, view_card, view_status
 
+    if args.name in SEQUENCE_VIEWS and not args.list:
+        card = view_card(args.name)
+        if args.json:
+            print(json.dumps(card, indent=1))
+        else:
+            _print_seq_card(card)
+        return 0
     if args.list or not args.name:
         rows = []
         for name, e in DATASETS.items():
@@ -117,14 +146,21 @@ def _info(args: argparse.Namespace) -> int:
                          "prepared": st.prepared, "location": st.location,
                          "fingerprint": st.fingerprint, "missing": st.missing,
                          "description": e.description})
+        for name, source in SEQUENCE_VIEWS.items():
+            st = view_status(name)
+            rows.append({"name": name, "paper_dataset": False, "view_of": source,
+                         "prepared": st.prepared, "location": st.location,
+                         "fingerprint": st.fingerprint, "missing": st.missing,
+                         "description": f"composed multi-action sequences over {source} "
+                         "(motion-graph stand-in for BABEL-MAG; a view, not a data set)"})
         if args.json:
             print(json.dumps(rows, indent=1))
         else:
             for r in rows:
                 state = "ready" if r["prepared"] else "missing"
-                print(f"{r['name']:<14} {state:<8} {r['description']}")
+                print(f"{r['name']:<16} {state:<8} {r['description']}")
                 if r["missing"]:
-                    print(f"{'':<14} {'':<8} {r['missing']}")
+                    print(f"{'':<16} {'':<8} {r['missing']}")
         return 0
     summary = clipset_summary(get_entry(args.name).load())
     if args.json:
@@ -155,6 +191,52 @@ def _print_summary(s: dict) -> None:
         for k, v in s["per_style"].items():
             t.add_row(k, str(v))
         con.print(t)
+
+
+def _fmt_stats(d: dict) -> str:
+    return "n/a" if d["mean"] is None else f"{d['mean']:.3f} (median {d['median']:.3f})"
+
+
+def _print_seq_card(c: dict, matrix: bool = True) -> None:
+    """The card of a sequence view: counts, actions per sequence, junction quality and the
+    train tag-pair count matrix (rows: from, columns: to, by label index)."""
+    from rich.console import Console
+    from rich.table import Table
+
+    con = Console()
+    sq, seg, fr = c["sequences"], c["segments"], c["frames"]
+    con.print(f"[bold]{c['name']}[/bold]: {sq['total']} sequences ({sq['train']} train / "
+              f"{sq['test']} test) over {c['source']['name']} ({c['source']['clips']} clips); "
+              f"{seg['action']} actions, {seg['lead_in']} lead-ins, {seg['lead_out']} lead-outs")
+    a = c["actions_per_sequence"]
+    if a:
+        con.print(f"actions per sequence: min {a['min']}, mean {a['mean']:.2f}, max {a['max']}")
+    con.print(f"frames: {fr['total']} ({fr['transition']} transition frames in "
+              f"{fr['transitions']} transitions of {c['config']['blend_frames']}) "
+              f"at {c['fps']:g} fps")
+    q = c["junction_quality"]
+    for key, title, unit in (("velocity_jump", "velocity jump", "cm/frame^2"),
+                             ("foot_slide", "foot slide", "cm/frame")):
+        con.print(f"{title} ({unit}): junctions {_fmt_stats(q[key]['junction'])}, inside clips "
+                  f"{_fmt_stats(q[key]['inside'])}")
+    ts = c["tag_pairs"]["train_summary"]
+    con.print(f"train tag pairs: {ts['pairs']} pairs, {ts['zero_pairs']}/{ts['cells']} cells zero, "
+              f"top 10% of cells hold {100 * (ts['top10pct_pairs_mass'] or 0):.1f}% of pairs")
+    con.print(f"fingerprint: {c['fingerprint']}")
+    con.print(f"[dim]{c['stand_in']}[/dim]")
+    if not matrix:
+        return
+    from rich import box
+
+    names = c["tag_pairs"]["label_names"]
+    t = Table(title="train tag-pair counts (consecutive segments, all roles; . = 0)",
+              box=box.SIMPLE_HEAD, pad_edge=False)
+    t.add_column("from \\ to", no_wrap=True)
+    for i in range(len(names)):
+        t.add_column(str(i), justify="right", no_wrap=True)
+    for i, row in enumerate(c["tag_pairs"]["train"]):
+        t.add_row(f"{i} {names[i]}", *[str(v) if v else "." for v in row])
+    con.print(t)
 
 
 def _bundle(args: argparse.Namespace) -> int:

@@ -43,12 +43,23 @@ def evaluator_clipset(protocol, clipset):
 
 def evaluator_for(cfg: dict):
     """The evaluator of a band: ``cfg`` holds ``dataset``, ``protocol``, ``protocol_params`` and
-    ``evaluator`` {dataset, kind, scale, seed}.  Trained once, then loaded from the store."""
+    ``evaluator`` {dataset, kind, scale, seed[, heading]}.  Trained once, then loaded from the
+    store."""
     from repro.eval.provider import get_evaluator
 
     ev = cfg["evaluator"]
     clips = evaluator_clipset(_protocol(cfg), clipset(cfg["dataset"]))
-    return get_evaluator(ev["dataset"], ev["kind"], ev["scale"], ev["seed"], clipset=clips)
+    return get_evaluator(ev["dataset"], ev["kind"], ev["scale"], ev["seed"], clipset=clips,
+                         heading=ev.get("heading"))
+
+
+def training_items(cfg: dict, clips):
+    """The items a method trains on: described by ``cfg["items"]`` (a
+    :class:`repro.data.contexts.ItemSource`), so every protocol that makes items the same way
+    shares the trained model."""
+    from repro.data.contexts import ItemSource
+
+    return ItemSource.from_description(cfg["items"]).train_items(clips)
 
 
 def _write_values(ctx, values: dict) -> None:
@@ -62,7 +73,7 @@ def train_method(ctx) -> None:
     cfg = ctx.config
     ctx.seed_globals()
     clips = clipset(cfg["dataset"])
-    items = _protocol(cfg).train_items(clips)
+    items = training_items(cfg, clips)
     cls = generator_class(cfg["method"])
     gen = cls(cfg["method_config"], clips.skeleton, clips.n_classes, clips.fps)
     epochs = cfg["method_config"].get("epochs")
@@ -90,19 +101,49 @@ def _replicate_inputs(ctx):
     return cfg, proto, clips, proto.test_items(clips)
 
 
-def generate(ctx) -> None:
-    from repro.models.base import Generator
+def load_generator(cfg: dict, path):
+    """The trained generator of a row: as saved, or, for a method that trains as another
+    (``trains_as``: NEURAL MARIONETTE runs MarioNet's weights with inference-time schemes), the
+    saved model wrapped with the row's inference options."""
+    from repro.models.base import Generator, generator_class
 
-    cfg, proto, _, items = _replicate_inputs(ctx)
-    gen = Generator.load(ctx.inputs[0].path)
-    out = proto.generate(gen, items, seed=ctx.seed, replicate=cfg["replicate"], need=cfg["need"])
+    gen = Generator.load(path)
+    method = cfg.get("method")
+    if method is not None and method != gen.method_id:
+        cls = generator_class(method)
+        if getattr(cls, "trains_as", None) != gen.method_id:
+            from repro.errors import DataError
+
+            raise DataError(f"stored model is {gen.method_id!r}, the row's method {method!r}")
+        opts = {k: v for k, v in cfg["method_config"].items() if k in cls.inference_fields}
+        gen = cls.from_marionet(gen, opts)
+    return gen
+
+
+def _protocol_extras(cfg, proto, clips) -> dict:
+    """What protocols that generate or measure with the evaluator and the data set get."""
+    if not getattr(proto, "generation_uses_evaluator", False):
+        return {}
+
+    def factory(seed: int):
+        return evaluator_for({**cfg, "evaluator": {**cfg["evaluator"], "seed": int(seed)}})
+
+    return {"evaluator": evaluator_for(cfg), "clipset": clips, "evaluator_factory": factory}
+
+
+def generate(ctx) -> None:
+    cfg, proto, clips, items = _replicate_inputs(ctx)
+    gen = load_generator(cfg, ctx.inputs[0].path)
+    out = proto.generate(gen, items, seed=ctx.seed, replicate=cfg["replicate"], need=cfg["need"],
+                         **_protocol_extras(cfg, proto, clips))
     proto.save_generated(out, ctx.out / GENERATED)
 
 
 def measure(ctx) -> None:
-    cfg, proto, _, items = _replicate_inputs(ctx)
+    cfg, proto, clips, items = _replicate_inputs(ctx)
     generated = proto.load_generated(ctx.inputs[0].path / GENERATED)
-    values = proto.measure(generated, items, evaluator_for(cfg), seed=ctx.seed)
+    extra = {"clipset": clips} if getattr(proto, "generation_uses_evaluator", False) else {}
+    values = proto.measure(generated, items, evaluator_for(cfg), seed=ctx.seed, **extra)
     _write_values(ctx, values)
 
 

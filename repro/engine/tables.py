@@ -25,8 +25,10 @@ the paper-style ± of the spec's interval convention beside our bootstrap interv
   smallest pairwise P (an upper bound on the joint probability);
 - ``gap`` with ``bound = "at_least"`` is P(A beats B by ≥ δ); ``bound = "within"`` is
   1 − P(A − B ≥ δ) − P(B − A ≥ δ);
-- ``trend`` along rows is the conjunction of consecutive pairs; trends along a figure's x axis
-  are evaluated by the figure protocols (not yet built: "not evaluated").
+- ``trend`` along rows is the conjunction of consecutive pairs (``stable``: each pair within δ);
+- on a figure, cells are per x point (``"overall.acc@3"``) and claims are evaluated along the
+  x axis by :mod:`repro.engine.figures` (conjunctions over ``x_range``; trends along x from
+  the replicates' least-squares slopes).
 - ``closer_to_real`` columns compare |value − mean(real)| with "lower" as better.
 """
 
@@ -63,6 +65,8 @@ class Band:
     evaluator_key: str | None = None
     version: int | None = None  # the protocol implementation's version
     module: str | None = None   # the protocol implementation's module (a plug-in of its jobs)
+    item_source: dict | None = None  # how training items are made (ItemSource.describe())
+    generation_uses_evaluator: bool = False  # generate jobs read the evaluator (multi-action)
 
     def step_config(self, dataset: str, *, with_evaluator: bool = False) -> dict[str, Any]:
         """What every step of this band reads: data set and protocol (+ the evaluator for the
@@ -151,8 +155,10 @@ def _method_config(method: str, scale, overrides: dict) -> tuple[dict | None, st
         cls = generator_class(method)
     except ConfigError as e:
         return None, str(e)
+    base = getattr(cls, "trains_as", None)  # its training method's scale settings come first
+    scaled = {**(scale.method_config(base) if base else {}), **scale.method_config(method)}
     try:
-        cfg = cls.Config.resolve({**scale.method_config(method), **overrides}, where=method)
+        cfg = cls.Config.resolve({**scaled, **overrides}, where=method)
     except ConfigError as e:  # a variant the spec names but the method does not offer (yet)
         return None, f"variant not implemented: {e}"
     return cfg.model_dump(mode="json"), None
@@ -204,11 +210,18 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
         b.module = type(proto).__module__
         b.evaluator = {"dataset": dataset, "kind": proto.evaluator_kind, "scale": scale.name,
                        "seed": 0}
+        heading = getattr(proto, "evaluator_heading", None)
+        if heading is not None:  # a protocol that changes headings asks for a heading-free one
+            b.evaluator["heading"] = heading
+        b.item_source = proto.item_source().describe() if hasattr(proto, "item_source") else None
+        b.generation_uses_evaluator = bool(getattr(proto, "generation_uses_evaluator", False))
         if fp is not None:
             from repro.engine.steps import clipset, evaluator_clipset
 
             clips = clips or clipset(dataset)
-            b.evaluator_key = evaluator_key(proto.evaluator_kind, settings,
+            ev_settings = settings if heading is None else resolve_settings(
+                scale.name, {"heading": heading})
+            b.evaluator_key = evaluator_key(proto.evaluator_kind, ev_settings,
                                             evaluator_clipset(proto, clips).fingerprint, 0)
     plan = TablePlan(spec, scale, dataset, fp, missing, seeds, bands, [], retrain=bool(retrain))
     job = partial(Job, threads=scale.threads)  # every table job computes with the profile's count
@@ -227,7 +240,14 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
             if mcfg is None:
                 rp.status, rp.reason = NOT_IMPLEMENTED, why
                 continue
-            method_module = generator_class(row.method).__module__
+            cls = generator_class(row.method)
+            method_module = cls.__module__
+            # a method that trains as another (NEURAL MARIONETTE = MarioNet's weights plus
+            # inference-time schemes) shares that method's training job
+            train_method = getattr(cls, "trains_as", None) or row.method
+            train_cfg = {k: v for k, v in mcfg.items()
+                         if k not in getattr(cls, "inference_fields", ())}
+            train_module = generator_class(train_method).__module__
         for bi, b in enumerate(bands):
             if not b.implemented:
                 continue
@@ -242,12 +262,15 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
                     for r, s in enumerate(seeds)]
                 continue
             def train_job(seed):
+                # keyed by how the training items are made, not by the protocol, so a model
+                # serves every table whose protocols make items the same way
                 return job("train", f"{STEPS}:train_method",
-                           {**base, "method": row.method, "method_config": mcfg},
+                           {"dataset": dataset, "items": b.item_source, "method": train_method,
+                            "method_config": train_cfg},
                            seed=seed, fingerprints=fps,
-                           label=f"{row.method}/train"
+                           label=f"{train_method}/train"
                            + ("" if seed == seeds[0] else f"/s{seed}"),
-                           plugins=(method_module, b.module))
+                           plugins=(train_module,))
 
             # one model per row (its seed = the first replicate seed), or with ``retrain`` one
             # per replicate (seed = the replicate's): the first is the same job either way
@@ -255,11 +278,18 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
             rp.train[bi] = trains
             ms = []
             for r, s in enumerate(seeds):
-                gen = job("generate", f"{STEPS}:generate",
-                          {**base, "replicate": r, "need": sorted(set(b.metrics.values()))},
-                          inputs=(trains[r if retrain else 0],), seed=s, fingerprints=fps,
-                          label=f"{row.method}/generate/r{r}",
-                          plugins=(method_module, b.module))
+                gcfg = {**base, "replicate": r, "need": sorted(set(b.metrics.values()))}
+                gfps = fps
+                if train_method != row.method:
+                    gcfg.update(method=row.method, method_config=mcfg)
+                if b.generation_uses_evaluator:  # test set (and AR) depend on the evaluator
+                    gcfg["evaluator"] = b.evaluator
+                    gfps = {**fps, "evaluator": b.evaluator_key}
+                gen = job("generate", f"{STEPS}:generate", gcfg,
+                          inputs=(trains[r if retrain else 0],), seed=s, fingerprints=gfps,
+                          label=f"{row.id if train_method != row.method else row.method}"
+                                f"/generate/r{r}",
+                          plugins=tuple(dict.fromkeys((method_module, train_module, b.module))))
                 ms.append(job("measure", f"{STEPS}:measure", {**base, "evaluator": b.evaluator},
                               inputs=(gen,), seed=s,
                               fingerprints={**fps, "evaluator": b.evaluator_key},
@@ -277,9 +307,12 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
 
 def collect_values(plan: TablePlan, reports: dict) -> list[dict]:
     """Every raw replicate value of the run: one dict per (row, column, replicate);
-    ``reports`` maps row id -> that row's execution report."""
+    ``reports`` maps row id -> that row's execution report.  On a figure, one dict per (row,
+    column, replicate, x present), column id ``f"{column}@{x}"`` (:mod:`repro.engine.figures`)."""
+    from repro.engine.figures import is_figure, per_x_values, x_cell_id
     from repro.engine.steps import read_values
 
+    axis = plan.spec.x if is_figure(plan.spec) else None
     out = []
     for rp in plan.rows:
         report = reports.get(rp.row_id)
@@ -290,6 +323,12 @@ def collect_values(plan: TablePlan, reports: dict) -> list[dict]:
             for r, job in enumerate(jobs):
                 vals = read_values(report.object(job))
                 for col in band.columns:
+                    if axis is not None:
+                        for x, v in per_x_values(vals, band.metrics[col], axis.start, axis.stop):
+                            out.append({"row": rp.row_id, "column": x_cell_id(col, x),
+                                        "replicate": r, "seed": job.seed, "value": v,
+                                        "metric": band.metrics[col], "job": job.key(), "x": x})
+                        continue
                     v = vals.get(band.metrics[col])
                     if v is None and band.metrics[col] not in vals:
                         continue  # the protocol does not measure this column for this row
@@ -319,10 +358,15 @@ def summarise(plan: TablePlan, values: list[dict]) -> dict:
         s = summarize(vals, spec.interval_for(row_id), n_boot=plan.scale.bootstrap_resamples,
                       seed=derive_seed(0, spec.id, row_id, col))
         out_cells.setdefault(row_id, {})[col] = s.to_dict()
-    claims = [_claim(spec, cl, cells) for cl in spec.claims]
-    return {"schema": SUMMARY_SCHEMA, "table": spec.id, "cells": out_cells, "claims": claims,
-            "rows": {rp.row_id: {"status": rp.status, "reason": rp.reason} for rp in plan.rows},
-            "unbuilt_columns": unbuilt_columns(plan)}
+    claims = [_claim(spec, cl, cells, values) for cl in spec.claims]
+    out = {"schema": SUMMARY_SCHEMA, "table": spec.id, "cells": out_cells, "claims": claims,
+           "rows": {rp.row_id: {"status": rp.status, "reason": rp.reason} for rp in plan.rows},
+           "unbuilt_columns": unbuilt_columns(plan)}
+    from repro.engine.figures import axis_summary, is_figure
+
+    if is_figure(spec):  # cells are per x ("overall.acc@3"); say which x the run has
+        out["x"] = axis_summary(spec, cells)
+    return out
 
 
 def unbuilt_columns(plan: TablePlan) -> dict[str, str]:
@@ -330,9 +374,14 @@ def unbuilt_columns(plan: TablePlan) -> dict[str, str]:
     return {c: b.reason or NOT_IMPLEMENTED for b in plan.bands if not b.implemented for c in b.columns}
 
 
-def _claim(spec, cl, cells) -> dict:
-    from repro.stats.claims import claim_probability
+def _claim(spec, cl, cells, values: list[dict] | None = None) -> dict:
+    """One claim's verdict from the cells (``(row, column) -> replicate values``); a figure's
+    claims read its per-x cells (:func:`repro.engine.figures.figure_claim`), with the raw
+    ``values`` pairing replicates for the slopes of a trend along x."""
+    from repro.engine.figures import figure_claim, is_figure
 
+    if is_figure(spec):
+        return figure_claim(spec, cl, cells, values)
     base = {"id": cl.id, "kind": cl.kind, "source": cl.source}
     involved = cl.involved_rows()
     for col in cl.column:
@@ -342,46 +391,67 @@ def _claim(spec, cl, cells) -> dict:
                         "reason": f"no reproduced values for row {r!r} in column {col!r}"}
     if cl.kind == "trend" and cl.along != "rows":
         return {**base, "verdict": "not evaluated", "probability": None,
-                "reason": "trends along a figure's x axis are not evaluated yet"}
-    seed = 0
+                "reason": "a trend along x needs a figure (a table has no x axis)"}
     pairs = []  # (probability, verdict, reason)
     for col in cl.column:
-        column = spec.column(col)
-        direction = cl.direction or column.direction
+        got = _pairs_on(spec, cl, col, col, cells)
+        if isinstance(got, str):
+            return {**base, "verdict": "not evaluated", "probability": None, "reason": got}
+        pairs.extend(got)
+    return _conjunction(base, pairs)
 
-        def vals(row_id, col=col, column=column, direction=direction):
-            v = cells[(row_id, col)]
-            if direction == "closer_to_real":
-                ref = spec.reference_row(col)
-                if ref is None or (ref, col) not in cells:
-                    return None
-                m = sum(cells[(ref, col)]) / len(cells[(ref, col)])
-                return [abs(x - m) for x in v]
-            return v
 
-        d = "lower" if direction in ("lower", "closer_to_real", "decreasing") else "higher"
-        if cl.kind == "order":
-            comps = [(cl.better, other) for other in cl.than]
-        elif cl.kind == "gap":
-            comps = [(cl.a, cl.b)]
-        else:  # trend along rows: consecutive rows follow the direction
-            comps = list(zip(cl.rows[1:], cl.rows[:-1]))
-        for a, b in comps:
-            va, vb = vals(a), vals(b)
-            if va is None or vb is None:
-                return {**base, "verdict": "not evaluated", "probability": None,
-                        "reason": f"no reference row for closer-to-real column {col!r}"}
-            delta = float(cl.delta or 0.0)
-            if cl.kind == "gap" and cl.bound == "within":
-                hi = claim_probability(va, vb, "higher", delta, seed=seed)
-                lo = claim_probability(va, vb, "lower", delta, seed=seed)
-                p = 1.0 - hi.probability - lo.probability
-                from repro.stats.claims import verdict as vd
+def _pairs_on(spec, cl, col: str, key: str, cells, seed: int = 0):
+    """The pairwise comparisons of an order / gap / trend-along-rows claim on column ``col``,
+    read from the cells ``(row, key)`` (``key`` = ``col`` on a table, ``"col@x"`` on a figure):
+    a list of (probability, verdict, reason), or a str saying why it cannot be evaluated."""
+    from repro.stats.claims import claim_probability
+    from repro.stats.claims import verdict as vd
 
-                pairs.append((p, vd(p), hi.reason or lo.reason))
-            else:
-                res = claim_probability(va, vb, d, delta if cl.kind == "gap" else 0.0, seed=seed)
-                pairs.append((res.probability, res.verdict, res.reason))
+    column = spec.column(col)
+    direction = cl.direction or column.direction
+
+    def vals(row_id):
+        v = cells[(row_id, key)]
+        if direction == "closer_to_real":
+            ref = spec.reference_row(col)
+            if ref is None or (ref, key) not in cells:
+                return None
+            m = sum(cells[(ref, key)]) / len(cells[(ref, key)])
+            return [abs(x - m) for x in v]
+        return v
+
+    d = "lower" if direction in ("lower", "closer_to_real", "decreasing") else "higher"
+    if cl.kind == "order":
+        comps = [(cl.better, other) for other in cl.than]
+    elif cl.kind == "gap":
+        comps = [(cl.a, cl.b)]
+    else:  # trend along rows: consecutive rows follow the direction
+        comps = list(zip(cl.rows[1:], cl.rows[:-1]))
+    within = (cl.kind == "gap" and cl.bound == "within") or \
+        (cl.kind == "trend" and direction == "stable")  # stable: consecutive rows within δ
+    pairs = []
+    for a, b in comps:
+        va, vb = vals(a), vals(b)
+        if va is None or vb is None:
+            return f"no reference row for closer-to-real column {col!r}"
+        delta = float(cl.delta or 0.0)
+        if within:
+            hi = claim_probability(va, vb, "higher", delta, seed=seed)
+            lo = claim_probability(va, vb, "lower", delta, seed=seed)
+            p = 1.0 - hi.probability - lo.probability
+            pairs.append((p, vd(p), hi.reason or lo.reason))
+        else:
+            res = claim_probability(va, vb, d, delta if cl.kind == "gap" else 0.0, seed=seed)
+            pairs.append((res.probability, res.verdict, res.reason))
+    return pairs
+
+
+def _conjunction(base: dict, pairs: list, lead: str | None = None, notes=()) -> dict:
+    """The verdict of a conjunction of comparisons (probability, verdict, reason): supported
+    when every one is, contradicted when any is, else inconclusive; P = the smallest P (an
+    upper bound on the joint probability).  ``lead`` (what decided it: the x present, the
+    replicates) opens the reason, then ``notes`` and the comparisons' own reasons."""
     ps = [p for p, _, _ in pairs]
     verdicts = [v for _, v, _ in pairs]
     if "contradicted" in verdicts:
@@ -391,9 +461,10 @@ def _claim(spec, cl, cells) -> dict:
     else:
         verdict = "inconclusive"
     finite = [p for p in ps if p is not None and math.isfinite(p)]
-    reasons = sorted({r for _, _, r in pairs if r})
+    reasons = sorted({r for _, _, r in pairs if r} | set(notes))
+    reason = "; ".join(([lead] if lead else []) + reasons) or None
     return {**base, "verdict": verdict, "probability": min(finite) if finite else None,
-            "pairwise": ps, "reason": "; ".join(reasons) or None}
+            "pairwise": ps, "reason": reason}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -402,22 +473,34 @@ def _claim(spec, cl, cells) -> dict:
 
 def _claim_text(spec, cl) -> str:
     cols = ", ".join(cl.column)
+    if cl.x_range is not None:  # figures only
+        cols += f" at x {cl.x_range[0]}..{cl.x_range[1]}"
+    elif cl.along == "x" and getattr(spec, "x", None) is not None:
+        cols += f" along x {spec.x.start}..{spec.x.stop}"
+    elif getattr(spec, "kind", "table") == "figure" and getattr(spec, "x", None) is not None:
+        cols += " at every x"
     if cl.kind == "order":
         return f"{cl.better} better than {', '.join(cl.than)} on {cols}"
     if cl.kind == "gap":
         rel = "within" if cl.bound == "within" else "ahead by at least"
         return f"{cl.a} vs {cl.b} on {cols}: {rel} {cl.delta}"
+    if cl.direction == "stable" and cl.delta is not None:
+        return f"{', '.join(cl.rows)}: stable within {cl.delta} on {cols}"
     return f"{', '.join(cl.rows)}: {cl.direction} on {cols}"
 
 
 def make_view(spec, plan_rows: dict[str, dict], summary: dict | None, footer: list[str],
               dataset: str | None, unbuilt: dict[str, str] | None = None) -> TableView:
     """The reported-vs-reproduced view from a spec and (optionally) a run's summary;
-    ``unbuilt`` names the columns whose protocol is not built (they read "not implemented")."""
-    from repro.specs import names
+    ``unbuilt`` names the columns whose protocol is not built (they read "not implemented").
+    A figure's view has its per-x cells (:func:`repro.engine.figures.figure_view`)."""
+    from repro.engine.figures import figure_view, is_figure
 
     cells = (summary or {}).get("cells", {})
     unbuilt = (summary or {}).get("unbuilt_columns", {}) if unbuilt is None else unbuilt
+    if is_figure(spec):
+        return figure_view(spec, plan_rows, summary, footer, _standin(dataset),
+                           _paper_title(spec), unbuilt, _claim_views(spec, summary))
     cols = []
     for c in spec.columns:
         g = spec.group_of(c.id)
@@ -446,6 +529,11 @@ def make_view(spec, plan_rows: dict[str, dict], summary: dict | None, footer: li
                     cst = "not measured" if summary else NOT_RUN
                 rv.cells[c.id] = CellView(printed, status=cst)
         rows.append(rv)
+    return TableView(spec.id, spec.title, _paper_title(spec), cols, rows,
+                     _claim_views(spec, summary), footer, _standin(dataset), spec.interval)
+
+
+def _claim_views(spec, summary: dict | None) -> list[ClaimView]:
     claims = []
     by_id = {c["id"]: c for c in (summary or {}).get("claims", [])}
     for cl in spec.claims:
@@ -454,9 +542,17 @@ def make_view(spec, plan_rows: dict[str, dict], summary: dict | None, footer: li
                                 None if got is None else got.get("probability"),
                                 "not evaluated" if got is None else got["verdict"],
                                 None if got is None else got.get("reason")))
-    standin = None
-    if dataset is not None and names.DATASETS[dataset].standin:
-        standin = dataset
-    return TableView(spec.id, spec.title, names.PAPERS[spec.paper.key].title if hasattr(
-        names, "PAPERS") and spec.paper.key in names.PAPERS else spec.paper.title,
-        cols, rows, claims, footer, standin, spec.interval)
+    return claims
+
+
+def _standin(dataset: str | None) -> str | None:
+    from repro.specs import names
+
+    return dataset if dataset is not None and names.DATASETS[dataset].standin else None
+
+
+def _paper_title(spec) -> str:
+    from repro.specs import names
+
+    return names.PAPERS[spec.paper.key].title if hasattr(
+        names, "PAPERS") and spec.paper.key in names.PAPERS else spec.paper.title

@@ -76,6 +76,7 @@ class GeneratorConfig(BaseModel):
 #: method_id -> module that defines (and registers) it.  Add a line per new method.
 GENERATOR_MODULES: dict[str, str] = {
     "marionet": "repro.models.marionet",
+    "neural_marionette": "repro.models.neural_marionette",
     "nearest_clip": "repro.models.nearest_clip",
     "mann": "repro.models.mann",
     "a2m": "repro.models.a2m",

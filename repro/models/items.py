@@ -94,6 +94,8 @@ class ActionItems:
     normalised frame; ``action`` past an item's length repeats its last frame.  ``trajectory``
     (N, T_max, 2) metres; ``lengths`` (N,) action frames; ``labels``/``next_labels``/``styles``
     (N,) int64; ``clip_index`` (N,) rows of the source ClipSet (-1 when not from one);
+    ``segment_index`` (N,) the sequence segment each item is (items from composed sequences,
+    :mod:`repro.data.contexts`; None otherwise);
     ``canon``: the normalisation (world → item frame).
     """
 
@@ -108,6 +110,7 @@ class ActionItems:
     label_names: tuple[str, ...]
     styles: torch.Tensor | None = None
     clip_index: torch.Tensor | None = None
+    segment_index: torch.Tensor | None = None
     in_place_classes: tuple[str, ...] = ()
     config: ItemsConfig = field(default_factory=ItemsConfig)
     source: str = ""
@@ -150,6 +153,8 @@ class ActionItems:
                "clips": None if self.clip_index is None else self.clip_index.tolist(),
                "lengths": self.lengths.tolist(), "labels": self.labels.tolist(),
                "next_labels": self.next_labels.tolist()}
+        if self.segment_index is not None:
+            rec["segments"] = self.segment_index.tolist()
         if self.clip_index is None or not self.source:
             import hashlib
 
@@ -170,7 +175,8 @@ class ActionItems:
             lengths=self.lengths[idx], labels=self.labels[idx], next_labels=self.next_labels[idx],
             trajectory=self.trajectory[idx, :T], in_place=self.in_place[idx],
             canon=self.canon.select(idx), label_names=self.label_names, styles=opt(self.styles),
-            clip_index=opt(self.clip_index), in_place_classes=self.in_place_classes,
+            clip_index=opt(self.clip_index), segment_index=opt(self.segment_index),
+            in_place_classes=self.in_place_classes,
             config=self.config, source=self.source, n_skipped=self.n_skipped)
 
     # -- frames ----------------------------------------------------------------------------
@@ -312,9 +318,23 @@ def build_items(clips, split: int | None = None, config: ItemsConfig | dict | No
                         "frames an item needs")
     T = np.minimum(lens - K, config.max_frames)
     Tmax = int(T.max())
-    lengths = torch.from_numpy(T)
-
     whole = Motion.from_clipset(clips, idx, 0, K + Tmax, pad=True, dtype=dtype)
+    nxt, _ = next_tags(clips, idx, K + T - 1, config)
+    return items_from_windows(whole, T, clips.labels[idx], nxt, clips, config, clip_index=idx,
+                              source=str(clips.fingerprint), n_skipped=n_skipped)
+
+
+def items_from_windows(whole: Motion, lengths, labels, next_labels, clips, config: ItemsConfig,
+                       *, clip_index, segment_index=None, source: str,
+                       n_skipped: int = 0) -> ActionItems:
+    """Items from world-frame windows ``whole`` (N, K + T_max): the first ``K = n_init`` frames
+    are the initial motion, the next ``lengths`` (N,) frames the action (frames past it are
+    padded with its last one); Marionette-normalised at ``P₋₁``; trajectory and in-place
+    classes as in the module docstring.  The one tail of :func:`build_items` and of
+    :func:`repro.data.contexts.sequence_items`."""
+    K = config.n_init
+    Tmax = whole.n_frames - K
+    lengths = torch.as_tensor(np.asarray(lengths, np.int64))
     norm, canon = marionette_normalize(whole, anchor=K - 1, heading_axis=config.heading_axis,
                                        translation=config.translation)
     initial = norm.slice_time(0, K)
@@ -324,18 +344,20 @@ def build_items(clips, split: int | None = None, config: ItemsConfig | dict | No
     names = tuple(clips.label_names)
     inplace_names = in_place_classes(clips, config)
     inplace_ids = [names.index(n) for n in inplace_names]
-    labels = clips.labels[idx].astype(np.int64)
+    labels = np.asarray(labels, np.int64)
     in_place = torch.from_numpy(np.isin(labels, inplace_ids))
     traj = action.root[..., [0, 2]].clone()
     traj[in_place] = 0.0
-
-    nxt, _ = next_tags(clips, idx, K + T - 1, config)
+    clip_index = np.asarray(clip_index, np.int64)
     return ActionItems(
         initial=initial, action=action, lengths=lengths, labels=torch.from_numpy(labels),
-        next_labels=torch.from_numpy(nxt), trajectory=traj, in_place=in_place, canon=canon,
-        label_names=names, styles=torch.from_numpy(clips.styles[idx].astype(np.int64)),
-        clip_index=torch.from_numpy(idx.astype(np.int64)), in_place_classes=inplace_names,
-        config=config, source=str(clips.fingerprint), n_skipped=n_skipped)
+        next_labels=torch.from_numpy(np.asarray(next_labels, np.int64)), trajectory=traj,
+        in_place=in_place, canon=canon, label_names=names,
+        styles=torch.from_numpy(clips.styles[clip_index].astype(np.int64)),
+        clip_index=torch.from_numpy(clip_index),
+        segment_index=None if segment_index is None else
+        torch.from_numpy(np.asarray(segment_index, np.int64)),
+        in_place_classes=inplace_names, config=config, source=source, n_skipped=n_skipped)
 
 
 def condition_items(initial_world: Motion, labels: Sequence[int], next_labels: Sequence[int],

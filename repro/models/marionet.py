@@ -468,22 +468,30 @@ class MarioNet(Generator):
         motion = Motion(root, rot6d, self.skeleton, self.fps)
         return GeneratedItems(items.to_world(motion), items.lengths.clone(), items.labels.clone())
 
+    #: the label of the per-item noise stream (subclasses sharing MarioNet's weights keep it, so
+    #: their plain passes are bitwise MarioNet's)
+    noise_id = "marionet"
+
     @torch.no_grad()
     def generate_poses(self, cond_items: ActionItems, *, seed: int, use_mean: bool = False,
-                       use_cache: bool | None = None) -> torch.Tensor:
+                       use_cache: bool | None = None,
+                       first_feature: torch.Tensor | None = None) -> torch.Tensor:
         """The sampler's raw output: (N, T_max, 6J+3) decoder poses in each item's normalised
         frame (Sec. 4.2.3: ``Z ~ N(μ, σ²)``, or ``μ`` when ``use_mean``; controls from the
         Rev-PE of the item's duration and its trajectory; frame-by-frame decoding from the BOP).
         ``use_cache`` (default ``config.kv_cache``) picks the key/value-cached decoder or the
         full causal recomputation at every step.  Noise is drawn per item, in item order, from
-        ``seed``, so results do not depend on ``sample_batch_size``."""
+        ``seed``, so results do not depend on ``sample_batch_size``.  ``first_feature`` (N, d)
+        replaces each item's BOP embedding at decoder step 0 (Shadow Start, Sec. 4.3.2)."""
         self._check_items(cond_items)
         cfg, net = self.config, self.net
         net.eval()
         use_cache = cfg.kv_cache if use_cache is None else use_cache
         data = self._tensors(cond_items, with_targets=False)
         N, Tmax = len(cond_items), int(cond_items.lengths.max())
-        eps = torch.randn(N, cfg.d_model, generator=torch_generator(seed, self.method_id, "z"))
+        if first_feature is not None and tuple(first_feature.shape) != (N, cfg.d_model):
+            raise ValueError(f"first_feature must be ({N}, {cfg.d_model})")
+        eps = torch.randn(N, cfg.d_model, generator=torch_generator(seed, self.noise_id, "z"))
         out = torch.zeros(N, Tmax, net.pose_dim)
         for s in range(0, N, cfg.sample_batch_size):
             idx = torch.arange(s, min(N, s + cfg.sample_batch_size))
@@ -491,7 +499,9 @@ class MarioNet(Generator):
             mu, logvar, tag, _ = net.encode(b["init"], b["labels"], b["next_labels"])
             z = mu if use_mean else mu + torch.exp(0.5 * logvar) * eps[idx]
             ctrl = net.controls(z, tag, b["trajectory"], b["lengths"])
-            gen = net.generate(b["init"][:, -1], ctrl, b["lengths"], use_cache=use_cache)
+            ff = None if first_feature is None else first_feature[idx]
+            gen = net.generate(b["init"][:, -1], ctrl, b["lengths"], use_cache=use_cache,
+                               first_feature=ff)
             out[idx, :gen.shape[1]] = gen
         return out
 

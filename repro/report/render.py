@@ -5,6 +5,11 @@ the table's own interval convention, and our bootstrap interval), says "not impl
 "data unavailable" or "not run" in words, marks a stand-in data set visibly, lists each claim
 with its verdict and probability, and ends with the footer (evaluator fingerprint, interval
 method, scale, run, spec version).
+
+A figure (:class:`~repro.report.view.FigureView`) prints no paper values: each format says so
+and shows one block per column, x down the side and the rows across (20 x points fit a
+terminal that way; 20 columns would not), each cell our mean with its intervals; json and csv
+carry every x cell.
 """
 
 from __future__ import annotations
@@ -15,7 +20,7 @@ import io
 import json
 import math
 
-from repro.report.view import OK, CellView, TableView
+from repro.report.view import OK, CellView, FigureView, TableView
 
 FORMATS = ("term", "md", "latex", "html", "json", "csv")
 
@@ -70,6 +75,8 @@ def render(view: TableView, fmt: str = "term") -> str:
         from repro.errors import ConfigError
 
         raise ConfigError(f"unknown format {fmt!r}; choose one of {', '.join(FORMATS)}")
+    if isinstance(view, FigureView) and fmt not in ("json",):
+        return globals()[f"_figure_{fmt}"](view)
     return globals()[f"_render_{fmt}"](view)
 
 
@@ -175,4 +182,123 @@ def _render_csv(view: TableView) -> str:
                         "" if cell.paper_pm is None else repr(cell.paper_pm),
                         "" if cell.ci is None else repr(cell.ci[0]),
                         "" if cell.ci is None else repr(cell.ci[1]), cell.n])
+    return buf.getvalue()
+
+
+# ---------------------------------------------------------------------------------------------
+# figures: one block per column, x down the side, rows across
+
+
+def _figure_cell(row, key: str) -> str:
+    return ours_text(row.cells.get(key, CellView(status=row.status)))
+
+
+def _column_title(col) -> str:
+    unit = f" ({col.unit})" if col.unit else ""
+    return f"{col.label}{_arrow(col.direction, col.label)}{unit}"
+
+
+def _figure_term(view: FigureView) -> str:
+    from rich.console import Console
+    from rich.table import Table
+    from rich.text import Text
+
+    buf = io.StringIO()
+    console = Console(file=buf, width=max(100, 12 + 30 * len(view.rows)), force_terminal=False,
+                      color_system=None)
+    console.print(_title(view), highlight=False, markup=False)
+    console.print(view.axis_line(), highlight=False, markup=False)
+    xlabel = view.x.label if view.x is not None else "x"
+    for col in view.columns:
+        table = Table(title=Text(_column_title(col)), show_lines=False, title_justify="left")
+        table.add_column(xlabel)
+        for row in view.rows:
+            table.add_column(row.label, overflow="fold")
+        for xs, key in view.cell_keys(col.id):
+            table.add_row(Text(xs), *[Text(_figure_cell(row, key)) for row in view.rows])
+        console.print(table)
+    if view.claims:
+        console.print("Claims:")
+        for cl in view.claims:
+            console.print(f"  {_claim_line(cl)}", highlight=False, markup=False)
+    for line in view.footer:
+        console.print(line, highlight=False, markup=False)
+    return buf.getvalue()
+
+
+def _figure_md(view: FigureView) -> str:
+    xlabel = view.x.label if view.x is not None else "x"
+    lines = [f"### {_title(view)}", "", view.axis_line()]
+    for col in view.columns:
+        head = [xlabel] + [r.label for r in view.rows]
+        lines += ["", f"#### {_column_title(col)}", "", "| " + " | ".join(head) + " |",
+                  "|" + "---|" * len(head)]
+        for xs, key in view.cell_keys(col.id):
+            lines.append("| " + " | ".join([xs] + [_figure_cell(r, key) for r in view.rows]) + " |")
+    if view.claims:
+        lines += ["", "**Claims**", ""] + [f"- {_claim_line(cl)}" for cl in view.claims]
+    if view.footer:
+        lines += [""] + [f"{x}  " for x in view.footer]
+    return "\n".join(lines) + "\n"
+
+
+def _figure_latex(view: FigureView) -> str:
+    xlabel = view.x.label if view.x is not None else "x"
+    n = len(view.rows)
+    out = [r"\begin{table}[t]", r"\centering", r"\caption{" + _tex(_title(view)) + "}",
+           "% " + view.axis_line()]
+    for i, col in enumerate(view.columns):
+        if i:
+            out.append(r"\medskip")
+        out += [r"\begin{tabular}{l" + "c" * n + "}", r"\toprule",
+                r"\multicolumn{" + str(n + 1) + "}{l}{" + _tex(_column_title(col)) + r"} \\",
+                r"\midrule",
+                _tex(xlabel) + " & " + " & ".join(_tex(r.label) for r in view.rows) + r" \\",
+                r"\midrule"]
+        for xs, key in view.cell_keys(col.id):
+            out.append(_tex(xs) + " & " + " & ".join(_tex(_figure_cell(r, key))
+                                                    for r in view.rows) + r" \\")
+        out += [r"\bottomrule", r"\end{tabular}"]
+    out.append(r"\end{table}")
+    out += ["% " + _claim_line(cl) for cl in view.claims] + ["% " + x for x in view.footer]
+    return "\n".join(out) + "\n"
+
+
+def _figure_html(view: FigureView) -> str:
+    e = html.escape
+    xlabel = view.x.label if view.x is not None else "x"
+    out = [f"<h3>{e(_title(view))}</h3>", f"<p>{e(view.axis_line())}</p>"]
+    for col in view.columns:
+        out += [f"<h4>{e(_column_title(col))}</h4>", "<table>",
+                f"<tr><th>{e(xlabel)}</th>" + "".join(f"<th>{e(r.label)}</th>" for r in view.rows)
+                + "</tr>"]
+        for xs, key in view.cell_keys(col.id):
+            out.append(f"<tr><td>{e(xs)}</td>" + "".join(
+                f"<td>{e(_figure_cell(r, key))}</td>" for r in view.rows) + "</tr>")
+        out.append("</table>")
+    if view.claims:
+        out.append("<ul>" + "".join(f"<li>{e(_claim_line(cl))}</li>" for cl in view.claims)
+                   + "</ul>")
+    out += [f"<p>{e(x)}</p>" for x in view.footer]
+    return "\n".join(out) + "\n"
+
+
+def _figure_csv(view: FigureView) -> str:
+    """The table's columns plus ``x``; ``column`` is the cell id (``overall.acc@3``), the
+    paper column is empty (a figure prints no numbers); before a run one status line per row
+    and column with an empty x."""
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(["table", "row", "method", "column", "status", "paper", "value", "paper_pm",
+                "ci_lo", "ci_hi", "n", "x"])
+    for row in view.rows:
+        for c in view.columns:
+            for xs, key in view.cell_keys(c.id):
+                cell = row.cells.get(key, CellView(status=row.status))
+                w.writerow([view.id, row.id, row.method, key, cell.status, "",
+                            "" if cell.value is None else repr(cell.value),
+                            "" if cell.paper_pm is None else repr(cell.paper_pm),
+                            "" if cell.ci is None else repr(cell.ci[0]),
+                            "" if cell.ci is None else repr(cell.ci[1]), cell.n,
+                            "" if key == c.id else xs])
     return buf.getvalue()

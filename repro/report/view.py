@@ -2,6 +2,11 @@
 
 Keeping the view separate from specs and run records lets every output format (terminal,
 Markdown, LaTeX, HTML, JSON, CSV) show exactly the same cells, statuses and footers.
+
+A figure (:class:`FigureView`) is a table whose cells are per x point: row ``r``'s cell of
+column ``c`` at x is ``rows[r].cells[f"{c}@{x}"]`` (:func:`x_cell_id`), for every x of
+``x.values`` (the x the run reproduced); before a run (no x) a row's cell of ``c`` is keyed by
+``c`` alone and only carries a status.  A figure prints no numbers, so ``reported`` is None.
 """
 
 from __future__ import annotations
@@ -76,3 +81,52 @@ class TableView:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+#: Separator of a figure's per-x cell ids: ``"overall.acc@3"`` is column overall.acc at x = 3.
+X_SEP = "@"
+
+
+def x_cell_id(column_id: str, x: int) -> str:
+    return f"{column_id}{X_SEP}{x}"
+
+
+def format_xs(xs) -> str:
+    """``[1, 2, 3, 5, 7, 8]`` → ``"1..3, 5, 7..8"``."""
+    xs = sorted(set(xs))
+    runs: list[list[int]] = []
+    for x in xs:
+        if runs and x == runs[-1][1] + 1:
+            runs[-1][1] = x
+        else:
+            runs.append([x, x])
+    return ", ".join(str(a) if a == b else f"{a}..{b}" for a, b in runs)
+
+
+@dataclass
+class AxisView:
+    """A figure's x axis: the paper's range and the x the run reproduced."""
+
+    id: str
+    label: str
+    start: int
+    stop: int
+    values: list[int] = field(default_factory=list)
+
+
+@dataclass
+class FigureView(TableView):
+    x: AxisView | None = None
+
+    def cell_keys(self, column_id: str) -> list[tuple[str, str]]:
+        """(x as text, cell key) of one column, in x order; one ("–", column id) before a run."""
+        if self.x is None or not self.x.values:
+            return [("–", column_id)]
+        return [(str(x), x_cell_id(column_id, x)) for x in self.x.values]
+
+    def axis_line(self) -> str:
+        a = self.x
+        if a is None:
+            return "figure: no printed values"
+        got = f"x {format_xs(a.values)}" if a.values else "nothing yet"
+        return f"figure: no printed values; x: {a.label} {a.start}..{a.stop}; reproduced: {got}"

@@ -21,6 +21,8 @@ from repro.errors import ConfigError
 #: protocol id -> the module that defines (and registers) it.  Add a line per new protocol.
 PROTOCOL_MODULES: dict[str, str] = {
     "single_action": "repro.eval.protocols.single_action",
+    "multi_action": "repro.eval.protocols.multi_action",
+    "ss_ar": "repro.eval.protocols.ss_ar",
 }
 _REGISTRY: dict[str, type] = {}
 

@@ -1,11 +1,16 @@
 """``single_action``: Neural Marionette's single-action protocol (Tables 1, 2 and Table 4's
 single-action column; paper §5.1.1-5.1.4).
 
-Items (§5.1.1, supp. §3; :mod:`repro.models.items`): the data set gets Marionette's test split
-(per class ``min(test_cap_per_class, round(test_fraction·n))`` clips, :func:`marionette_split`);
-every test clip yields one item: the initial motion (``initial_frames`` = 6 frames), the tag,
-the duration, the next tag (motion-graph successor) and the trajectory (ground-plane root path
-of root actions, zeros for in-place ones), in the item's Marionette-normalised frame.  At most
+Items (§5.1.1, supp. §3; :mod:`repro.data.contexts`): the data set gets Marionette's test split
+(per class ``min(test_cap_per_class, round(test_fraction·n))`` clips, :func:`marionette_split`)
+and is composed into multi-action sequences split by source clip (:mod:`repro.data.sequences`,
+the ``bandai2-seq`` view); every action of a test sequence yields one item: the initial motion
+(``initial_frames`` = 6 frames before the action in its sequence: the previous action's end and
+the blended transition, never the action's own clip), the tag, the duration, the next tag (the
+label of the following action in the sequence) and the trajectory (ground-plane root path of
+root actions, zeros for in-place ones), in the item's Marionette-normalised frame.
+``context = "same_clip"`` restores the earlier construction (the clip's own first frames and a
+next tag from its own end pose: a leak, kept as a named option).  At most
 ``samples_per_class`` items per class are scored (a seeded choice, the same for every method
 and replicate; ``None`` = all).
 
@@ -43,7 +48,6 @@ import dataclasses
 import io
 import json
 import zipfile
-from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Literal
@@ -52,12 +56,13 @@ import numpy as np
 import torch
 from pydantic import Field
 
-from repro.data.clipset import TEST, TRAIN
+from repro.data.clipset import TEST
 from repro.errors import ConfigError, DataError
 from repro.eval.protocols import register
 from repro.eval.protocols.base import Protocol, ProtocolParams
 from repro.keys import content_key
-from repro.models.items import ActionItems, GeneratedItems, ItemsConfig, build_items
+from repro.data.contexts import ItemSource, _cached
+from repro.models.items import ActionItems, GeneratedItems, ItemsConfig
 from repro.motion.motion import Motion
 from repro.motion.skeleton import Skeleton
 from repro.seeding import derive_seed, numpy_rng
@@ -89,6 +94,11 @@ class SingleActionParams(ProtocolParams):
     split: Literal["marionette", "dataset"] = Field(
         "marionette", description="Marionette's per-class split, or the data set's stored one")
     split_seed: int = Field(0, description="seed of the Marionette split")
+    context: Literal["sequence", "same_clip"] = Field(
+        "sequence", description="where P^ini and the next tag come from: the action's composed "
+        "sequence (repro.data.contexts), or the clip itself (the earlier, leaking construction)")
+    compose: dict = Field(default_factory=dict,
+                          description="repro.data.sequences.ComposeConfig overrides")
     selection_seed: int = Field(0, description="seed of the samples_per_class choice")
     max_frames: int = Field(120, ge=1, description="cap on an action's duration (frames)")
     eval_clip: Literal["centre", "start", "whole"] = Field(
@@ -147,23 +157,6 @@ def _cap(x: torch.Tensor, T: int) -> torch.Tensor:
     return x[:, :T]
 
 
-# Items are immutable in use and cost seconds to build: keep the last few per process.
-_ITEMS_CACHE: "OrderedDict[str, ActionItems]" = OrderedDict()
-_ITEMS_CACHE_SIZE = 8
-
-
-def _cached_items(key: str, build):
-    hit = _ITEMS_CACHE.get(key)
-    if hit is not None:
-        _ITEMS_CACHE.move_to_end(key)
-        return hit
-    items = build()
-    _ITEMS_CACHE[key] = items
-    while len(_ITEMS_CACHE) > _ITEMS_CACHE_SIZE:
-        _ITEMS_CACHE.popitem(last=False)
-    return items
-
-
 # ---------------------------------------------------------------------------------------------
 
 
@@ -176,57 +169,47 @@ class SingleAction(Protocol):
     metrics = METRICS
     real_metrics = REAL_METRICS
     evaluator_kind = "transformer"
-    version = 1
+    version = 2  # 2: items from composed sequences (repro.data.contexts)
 
     params: SingleActionParams
 
     # -- data ------------------------------------------------------------------------------
+    def item_source(self) -> ItemSource:
+        """How items are made (shared with the multi-action protocols and the training step)."""
+        p = self.params
+        return ItemSource(context=p.context, fps=p.fps, split=p.split, split_seed=p.split_seed,
+                          test_fraction=p.test_fraction, test_cap_per_class=p.test_cap_per_class,
+                          n_init=p.initial_frames, max_frames=p.max_frames, compose=p.compose)
+
     def split_clipset(self, clipset):
         """``clipset`` with the protocol's train/test split (train the evaluator on this one
         too, so that no scored test clip was seen by the recogniser)."""
-        p = self.params
-        if abs(float(clipset.fps) - p.fps) > 1e-6:
-            raise DataError(f"protocol single_action expects {p.fps:g} fps (Neural Marionette "
-                            f"supp. §3); data set {clipset.name!r} is at {clipset.fps:g} fps")
-        if p.split == "dataset":
-            return clipset
-        from repro.data.splits import marionette_clipset
-
-        return marionette_clipset(clipset, seed=p.split_seed, fraction=p.test_fraction,
-                                  cap=p.test_cap_per_class)
+        return self.item_source().split_clipset(clipset)
 
     def items_config(self) -> ItemsConfig:
-        return ItemsConfig(n_init=self.params.initial_frames, max_frames=self.params.max_frames)
-
-    def _items_key(self, clipset, which: str) -> str:
-        p = self.params
-        return content_key({"data": clipset.fingerprint, "which": which, "split": p.split,
-                            "split_seed": p.split_seed, "test_fraction": p.test_fraction,
-                            "cap": p.test_cap_per_class, "fps": p.fps,
-                            "items": self.items_config().model_dump(mode="json"),
-                            "samples_per_class": p.samples_per_class if which == "test" else None,
-                            "selection_seed": p.selection_seed if which == "test" else None})
+        return self.item_source().items_config()
 
     def train_items(self, clipset) -> ActionItems:
-        """One item per training clip of the protocol's split (module docstring)."""
-        def build():
-            return build_items(self.split_clipset(clipset), TRAIN, self.items_config())
-
-        return _cached_items(self._items_key(clipset, "train"), build)
+        """One item per training action (module docstring)."""
+        return self.item_source().train_items(clipset)
 
     def test_items(self, clipset) -> ActionItems:
-        """The scored items: one per test clip, at most ``samples_per_class`` per class."""
+        """The scored items: one per test action, at most ``samples_per_class`` per class."""
+        p = self.params
+        key = content_key({"source": self.item_source().describe(), "data": clipset.fingerprint,
+                           "samples_per_class": p.samples_per_class,
+                           "selection_seed": p.selection_seed})
+
         def build():
-            sc = self.split_clipset(clipset)
-            items = build_items(sc, TEST, self.items_config())
+            items = self.item_source().items(clipset, TEST)
             present = set(np.unique(items.labels.numpy()).tolist())
-            missing = [sc.label_names[c] for c in range(sc.n_classes) if c not in present]
+            missing = [items.label_names[c] for c in range(items.n_classes) if c not in present]
             if missing:
                 raise DataError(f"data set {clipset.name!r}: the single_action test split has "
                                 f"no item of {', '.join(missing)} (multimodality needs every tag)")
             return self._select(items)
 
-        return _cached_items(self._items_key(clipset, "test"), build)
+        return _cached(key, build)
 
     def _select(self, items: ActionItems) -> ActionItems:
         cap = self.params.samples_per_class

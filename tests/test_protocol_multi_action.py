@@ -1,0 +1,216 @@
+"""The ``multi_action`` and ``ss_ar`` protocols (Neural Marionette Tables 3-5, Figs 8 and 10)
+on bandai2-mini with a tiny heading-free recogniser: test-set construction (supp. §4.2), the
+chained pure generative pipeline (supp. Alg. 1), the columns, and the NEURAL MARIONETTE
+pipeline."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from repro.errors import ConfigError
+from repro.eval.protocols import get_protocol
+from repro.models.base import generator_class
+
+S, L = 6, 4
+
+
+def tiny_settings():
+    from repro.eval.settings import resolve_settings
+
+    return resolve_settings("quick", {
+        "window": 40, "heading": "remove",
+        "transformer": {"d_model": 32, "heads": 2, "layers": 1, "ff": 64, "dropout": 0.0},
+        "train": {"epochs": 20, "windows_per_epoch": 256, "batch_size": 128, "lr": 3e-3,
+                  "checkpoint_every": 10}})
+
+
+class Spy:
+    """Wraps a generator and records every condition batch it was given."""
+
+    method_id = "spy"
+
+    def __init__(self, gen):
+        self.gen, self.calls = gen, []
+
+    def sample(self, cond, *, seed, use_mean=False):
+        out = self.gen.sample(cond, seed=seed, use_mean=use_mean)
+        self.calls.append((cond, out))
+        return out
+
+
+@pytest.fixture(scope="module")
+def setup():
+    from repro.data.registry import load_clipset
+    from repro.eval.training import train_evaluator
+
+    torch.set_num_threads(1)
+    clips = load_clipset("bandai2-mini")
+    proto = get_protocol("multi_action", {"sequences": S, "actions_per_sequence": L,
+                                          "candidate_confidence": 0.3})
+    sc = proto.split_clipset(clips)
+    train, test = proto.train_items(clips), proto.test_items(clips)
+    ev = train_evaluator(sc, proto.evaluator_kind, tiny_settings(), seed=0)
+    gen = generator_class("nearest_clip")(None, sc.skeleton, sc.n_classes, sc.fps)
+    gen.fit(train, seed=0)
+    return {"clips": clips, "proto": proto, "train": train, "test": test, "ev": ev, "gen": gen}
+
+
+def test_params_and_registry():
+    p = get_protocol("multi_action", {})
+    assert p.params.sequences == 764 and p.params.actions_per_sequence == 20
+    assert p.params.score_from_action == 2 and p.params.candidate_confidence == 0.5
+    assert p.evaluator_heading == "remove"
+    assert get_protocol("ss_ar", {}).params.pipeline == "neural_marionette"
+    with pytest.raises(ConfigError):
+        get_protocol("multi_action", {"test_set": "sometimes"})
+
+
+@pytest.mark.parametrize("which", ["overall", "sufficient"])
+def test_test_sets_follow_supp_4_2(setup, which):
+    proto = get_protocol("multi_action", {**setup["proto"].params.model_dump(),
+                                          "test_set": which})
+    items, ev, clips = setup["test"], setup["ev"], setup["clips"]
+    ts = proto.test_set(clips, items, ev)
+    assert ts.actions.shape == (S, L)
+    cand = set(ts.candidates.tolist())
+    assert set(ts.actions.reshape(-1).tolist()) <= cand           # every action is a candidate
+    assert (ts.confidence[ts.candidates] >= 0.3).all()
+    assert (np.delete(ts.confidence, ts.candidates) < 0.3).all()
+    labels, own_next = items.labels.numpy(), items.next_labels.numpy()
+    counts = proto.transition_counts(clips)
+    has = {int(labels[c]) for c in cand}
+    for s in range(S):
+        for i in range(1, L):
+            a, b = labels[ts.actions[s, i - 1]], labels[ts.actions[s, i]]
+            if which == "overall":
+                ok = counts[a, b] > 0 or not any(counts[a, t] > 0 and t in has
+                                                 for t in range(len(counts)))
+            else:
+                conn = np.flatnonzero(counts[a] > 0)
+                top = conn[np.argsort(-counts[a, conn], kind="stable")][:4]
+                ok = b in set(top.tolist()) | {a, own_next[ts.actions[s, i - 1]]}
+            assert ok, (s, i, a, b)
+            assert ts.next_labels[s, i - 1] == b                    # conditioning next tag
+        assert ts.next_labels[s, -1] == labels[ts.actions[s, -1]]  # last: its own tag
+    again = proto._build_test_set(clips, items, ev)
+    assert np.array_equal(again.actions, ts.actions)              # deterministic
+
+
+def test_chain_follows_alg_1(setup):
+    proto, items, ev, clips = setup["proto"], setup["test"], setup["ev"], setup["clips"]
+    spy = Spy(setup["gen"])
+    out = proto.generate(spy, items, seed=0, replicate=0, evaluator=ev, clipset=clips)
+    ts = proto.test_set(clips, items, ev)
+    assert len(spy.calls) == L and len(out) == S * L
+    K = items.n_init
+    first = torch.from_numpy(ts.actions[:, 0])
+    c0, _ = spy.calls[0]
+    # action 1 starts from the real previous motion of the first candidate
+    assert torch.allclose(c0.initial_world().root, items.initial_world().select(first).root,
+                          atol=1e-5)
+    for i in range(1, L):
+        cond, _ = spy.calls[i]
+        _, prev = spy.calls[i - 1]
+        Lp = prev.lengths
+        for s in range(S):
+            want = prev.motion.root[s, Lp[s] - K:Lp[s]] if Lp[s] >= K else None
+            if want is not None:  # the next initial motion is the last K generated frames
+                assert torch.allclose(cond.initial_world().root[s], want, atol=1e-4)
+        idx = torch.from_numpy(ts.actions[:, i])
+        assert torch.equal(cond.labels, items.labels[idx])
+        assert torch.equal(cond.lengths, items.lengths[idx])
+        assert torch.equal(cond.next_labels, torch.from_numpy(ts.next_labels[:, i]))
+    # samples are sequence-major and equal the generator's outputs
+    _, o2 = spy.calls[2]
+    T = int(o2.lengths.max())
+    assert torch.allclose(out.motion.root[2::L][:, :T], o2.motion.root[:, :T])
+
+
+def test_measure_columns_and_round_trip(setup, tmp_path):
+    from repro.metrics.transitions import pose_gap
+
+    proto, items, ev, clips = setup["proto"], setup["test"], setup["ev"], setup["clips"]
+    out = proto.generate(setup["gen"], items, seed=0, replicate=1, evaluator=ev, clipset=clips)
+    path = proto.save_generated(out, tmp_path / "g.npz")
+    back = proto.load_generated(path)
+    assert torch.equal(back.motion.root, out.motion.root) and back.test_set_key == out.test_set_key
+    vals = proto.measure(back, items, ev, seed=0, clipset=clips)
+    for m in ("acc", "fid", "pose_gap", "vel_gap", "action_qr", "motion_qr"):
+        assert np.isfinite(vals[m]), m
+    for x in range(1, L + 1):
+        assert f"acc@{x}" in vals and f"motion_qr@{x}" in vals and f"fid@{x}" in vals
+    assert "pose_gap@1" not in vals and "pose_gap@2" in vals
+    # Δ_pose at action 2 is the mean over sequences of the junction's per-joint distance
+    j = back.joints().numpy()
+    lens = back.lengths.numpy()
+    prev = [j[s * L + 0, :lens[s * L]] for s in range(S)]
+    cur = [j[s * L + 1, :lens[s * L + 1]] for s in range(S)]
+    assert vals["pose_gap@2"] == pytest.approx(pose_gap(prev, cur), rel=1e-6)
+    # averages run from action 2: acc is the mean of acc@2..acc@L
+    assert vals["acc"] == pytest.approx(np.mean([vals[f"acc@{x}"] for x in range(2, L + 1)]))
+    # the Motion QR curve can only fall
+    mq = [vals[f"motion_qr@{x}"] for x in range(1, L + 1)]
+    assert all(a >= b for a, b in zip(mq, mq[1:]))
+    real = proto.real_replicate(clips, items, ev, seed=0, replicate=0)
+    assert set(real) >= {"acc", "fid", "action_qr", "motion_qr"} and "pose_gap" not in real
+
+
+def test_ss_ar_runs_neural_marionette_with_the_evaluator_as_f_c(setup):
+    from repro.models.marionet import MarioNet
+
+    clips, items, ev = setup["clips"], setup["test"], setup["ev"]
+    params = {**setup["proto"].params.model_dump(), "pipeline": "neural_marionette"}
+    proto = get_protocol("ss_ar", params)
+    sk = items.skeleton
+    tiny = {"d_model": 32, "traj_dim": 8, "cond_heads": 2, "cond_ff": 32, "cond_layers": 1,
+            "unroll_heads": 2, "unroll_ff": 32, "unroll_layers": 1, "dec_heads": 2,
+            "dec_ff": 32, "dec_layers": 1, "epochs": 1}
+    mn = MarioNet(tiny, sk, items.n_classes, items.fps)
+    mn.fit(setup["train"].subset(range(40)), seed=0)
+    nm_cls = generator_class("neural_marionette")
+    nm = nm_cls.from_marionet(mn, {"shadow_start": "on_revision", "action_revision": True})
+    out = proto.generate(nm, items, seed=0, replicate=0, evaluator=ev, clipset=clips)
+    assert out.revised is not None and out.revised.dtype == torch.bool
+    # an action is revised exactly when the evaluator rejected its plain pass: with an
+    # untrained model most are rejected
+    plain = get_protocol("multi_action", {**params, "pipeline": "pure_generative"})
+    base = plain.generate(mn, items, seed=0, replicate=0, evaluator=ev, clipset=clips)
+    vals = proto.measure(out, items, ev, seed=0, clipset=clips)
+    assert 0.0 <= vals["revised"] <= 1.0
+    # action 1 is generated from the same real context by both: where it was not revised it is
+    # bitwise the plain pipeline's
+    keep = ~out.revised[0::L]
+    assert torch.equal(out.motion.root[0::L][keep], base.motion.root[0::L][keep])
+    # the plain MARIONET row under ss_ar is the pure pipeline
+    again = proto.generate(mn, items, seed=0, replicate=0, evaluator=ev, clipset=clips)
+    assert torch.equal(again.motion.root, base.motion.root)
+    assert not bool(again.revised.any())
+
+
+@pytest.mark.parametrize("scale", ["quick", "medium"])
+def test_marionette_tables_share_one_training_per_model(scale):
+    """Tables 1-5 and Figs 8/10 key a training by how its items are made, not by protocol:
+    the full MarioNet is one job for all of them (NEURAL MARIONETTE rows included), at every
+    profile whose protocols make items alike."""
+    from repro.engine.tables import build_plan
+    from repro.specs.load import find_spec
+    from repro.specs.scales import resolve_scale
+
+    sc = resolve_scale(scale)
+    keys = {}
+    for t in ("table1", "table2", "table3", "table4", "table5", "fig8", "fig10"):
+        plan = build_plan(find_spec(f"marionette/{t}"), sc, dataset="bandai2-mini")
+        for rp in plan.rows:
+            for bi, trains in rp.train.items():
+                cfg = trains[0].config
+                if cfg["method"] == "marionet" and cfg["method_config"].get("next_tag", True) \
+                        and cfg["method_config"].get("scheduled_sampling", True) \
+                        and cfg["method_config"].get("time_unrolling", True) \
+                        and cfg["method_config"].get("tag_injection", True):
+                    keys.setdefault(trains[0].key(), set()).add(f"{t}/{rp.row_id}")
+    assert len(keys) == 1, keys
+    users = next(iter(keys.values()))
+    assert {"table1/marionet", "table3/marionet", "table5/neural_marionette",
+            "fig10/marionet_ss"} <= users
