@@ -162,7 +162,14 @@ def test_ss_ar_runs_neural_marionette_with_the_evaluator_as_f_c(setup):
 
     clips, items, ev = setup["clips"], setup["test"], setup["ev"]
     params = {**setup["proto"].params.model_dump(), "pipeline": "neural_marionette"}
+    asked = []
+
+    def factory(kind, seed):  # the engine trains F_c; here it records the request
+        asked.append((kind, seed))
+        return ev
+
     proto = get_protocol("ss_ar", params)
+    assert proto.params.revision_classifier == "independent"
     sk = items.skeleton
     tiny = {"d_model": 32, "traj_dim": 8, "cond_heads": 2, "cond_ff": 32, "cond_layers": 1,
             "unroll_heads": 2, "unroll_ff": 32, "unroll_layers": 1, "dec_heads": 2,
@@ -171,7 +178,11 @@ def test_ss_ar_runs_neural_marionette_with_the_evaluator_as_f_c(setup):
     mn.fit(setup["train"].subset(range(40)), seed=0)
     nm_cls = generator_class("neural_marionette")
     nm = nm_cls.from_marionet(mn, {"shadow_start": "on_revision", "action_revision": True})
-    out = proto.generate(nm, items, seed=0, replicate=0, evaluator=ev, clipset=clips)
+    with pytest.raises(ConfigError, match="factory"):
+        proto.generate(nm, items, seed=0, replicate=0, evaluator=ev, clipset=clips)
+    out = proto.generate(nm, items, seed=0, replicate=0, evaluator=ev, clipset=clips,
+                         evaluator_factory=factory)
+    assert asked == [("a2m_gru", 1)]  # another architecture, another seed
     assert out.revised is not None and out.revised.dtype == torch.bool
     # an action is revised exactly when the evaluator rejected its plain pass: with an
     # untrained model most are rejected

@@ -33,6 +33,7 @@ MODES = {
     "repro spec check": "fast",
     "repro doctor": "fast",
     "repro data info bandai2-mini": "fast",
+    "repro data info bandai2-seq-mini": "fast",
     "repro data prepare bandai2 --source ../shared/data/bandai-namco-2/bandai-namco-research-motiondataset-2.tar.xz": "data",
     "repro data info bandai2 --json": "data",
     "repro eval classifier --dataset bandai2 --scale medium": "slow",

@@ -32,7 +32,7 @@ from typing import Literal
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from repro.errors import DataError
 from repro.keys import content_key
@@ -56,6 +56,17 @@ class ItemSource(BaseModel):
     max_frames: int = Field(120, ge=1)
     compose: dict = Field(default_factory=dict)   # repro.data.sequences.ComposeConfig overrides
 
+    @model_validator(mode="after")
+    def _context_holds_real_frames(self):
+        if self.context == "sequence":
+            from repro.data.sequences import ComposeConfig
+
+            blend = ComposeConfig.resolve(self.compose).blend_frames
+            if self.n_init < blend + 2:
+                raise ValueError(f"n_init {self.n_init} < blend_frames {blend} + 2: the previous "
+                                 "motion would hold (almost) only blended transition frames")
+        return self
+
     def describe(self) -> dict:
         d = self.model_dump(mode="json")
         if self.context == "sequence":
@@ -69,6 +80,20 @@ class ItemSource(BaseModel):
 
     def key(self) -> str:
         return content_key(self.describe())
+
+    @classmethod
+    def make(cls, where: str, **fields) -> "ItemSource":
+        """``ItemSource(**fields)``; a bad value is a ConfigError naming ``where`` and the field."""
+        from pydantic import ValidationError
+
+        from repro.errors import ConfigError
+
+        try:
+            return cls(**fields)
+        except ValidationError as e:
+            err = e.errors()[0]
+            field = ".".join(str(p) for p in err.get("loc", ())) or "parameters"
+            raise ConfigError(f"{where}: {field}: {err['msg']}") from None
 
     @classmethod
     def from_description(cls, d: dict) -> "ItemSource":
@@ -160,7 +185,8 @@ def sequence_items(seqs, split: int | None, config=None, *, dtype: torch.dtype =
     clips = seqs.clips
     segs = seqs.segments(split=split, role=ROLE_ACTION)
     lens = seqs.seg_length[segs].astype(np.int64)
-    keep = lens >= config.min_frames
+    # an action needs min_frames frames and K frames before it in its sequence
+    keep = (lens >= config.min_frames) & (seqs.seg_start[segs] >= K)
     n_skipped = int((~keep).sum())
     segs, lens = segs[keep], lens[keep]
     if segs.size == 0:

@@ -114,7 +114,9 @@ class ComposeConfig(BaseModel):
     max_actions: int = 8              #   [min_actions, max_actions]
     cut_window: int = 10              # frames at a clip's end (exit) / start (entry) for cuts
     min_action_frames: int = 30       # no cut leaves an action shorter (or its clip, if shorter)
-    blend_frames: int = 6             # transition frames between two segments (0: a hard cut)
+    blend_frames: int = 3             # transition frames between two segments (0: a hard cut);
+                                      # 3 < the 6 frames of P^ini, so a context holds real frames
+                                      # of the previous action before the blend (docs/data.md)
     velocity_weight: float = 3.0      # frames: converts the velocity distance (m/frame) to metres
     candidates_per_step: int = 8      # random unused clips of the drawn tag compared per step
     n_frequent: int = 2               # frequent successor tags per tag

@@ -125,8 +125,9 @@ def _protocol_extras(cfg, proto, clips) -> dict:
     if not getattr(proto, "generation_uses_evaluator", False):
         return {}
 
-    def factory(seed: int):
-        return evaluator_for({**cfg, "evaluator": {**cfg["evaluator"], "seed": int(seed)}})
+    def factory(kind: str, seed: int):  # another classifier on the same split and heading
+        return evaluator_for({**cfg, "evaluator": {**cfg["evaluator"], "kind": kind,
+                                                   "seed": int(seed)}})
 
     return {"evaluator": evaluator_for(cfg), "clipset": clips, "evaluator_factory": factory}
 

@@ -32,8 +32,9 @@ is one pass with its own sampling seed.
 removes heading: chained actions take any heading, ``evaluator_heading``), averaged from action
 ``score_from_action`` (2) on, as the paper's tables are:
 
-- ``acc``: recognition accuracy; ``fid``: FID of the pooled actions against the real candidates'
-  features (``fid_reference = "candidates"``);
+- ``acc``: recognition accuracy; ``fid``: FID of the pooled actions against the real actions at
+  the same test-set positions (``fid_reference = "test_positions"``: the same tag mix; or every
+  candidate once, ``"candidates"``);
 - ``pose_gap`` (cm): mean over joints of ||J_prev[T] − J_cur[1]|| at each junction;
 - ``vel_gap`` (cm/frame): :func:`repro.metrics.transitions.velocity_gap` (``vel_gap_frames``);
 - ``action_qr`` / ``motion_qr``: qualification ratios (Eq. 7).
@@ -101,7 +102,10 @@ class MultiActionParams(ProtocolParams):
     evaluator_heading: Literal["remove", "yaw_augment"] = Field(
         "remove", description="heading-free evaluator (chained actions take any heading)")
     eval_clip: Literal["centre", "start", "whole"] = "centre"
-    fid_reference: Literal["candidates"] = "candidates"
+    fid_reference: Literal["test_positions", "candidates"] = Field(
+        "test_positions", description="real features FID compares with: the real actions at the "
+        "scored positions of the test set (per index for fid@x; same tag mix as the generated), "
+        "or every candidate once")
     fid_method: Literal["eigh", "scipy"] = "eigh"
     vel_gap_frames: Literal["boundary", "junction"] = "boundary"
 
@@ -119,6 +123,14 @@ class TestSet:
     def key(self) -> str:
         return content_key({"actions": self.actions.tolist(),
                             "next": self.next_labels.tolist()})
+
+
+@dataclass(frozen=True)
+class FidReference:
+    """Real feature statistics: ``pooled`` (for ``fid``) and ``per_index`` (for ``fid@x``)."""
+
+    pooled: object
+    per_index: list
 
 
 @dataclass(frozen=True, eq=False)
@@ -160,9 +172,11 @@ class MultiAction(Protocol):
     # -- data ------------------------------------------------------------------------------
     def item_source(self) -> ItemSource:
         p = self.params
-        return ItemSource(context=p.context, fps=p.fps, split=p.split, split_seed=p.split_seed,
-                          test_fraction=p.test_fraction, test_cap_per_class=p.test_cap_per_class,
-                          n_init=p.initial_frames, max_frames=p.max_frames, compose=p.compose)
+        return ItemSource.make(f"protocol {self.id!r}", context=p.context, fps=p.fps,
+                               split=p.split, split_seed=p.split_seed,
+                               test_fraction=p.test_fraction,
+                               test_cap_per_class=p.test_cap_per_class, n_init=p.initial_frames,
+                               max_frames=p.max_frames, compose=p.compose)
 
     def split_clipset(self, clipset):
         return self.item_source().split_clipset(clipset)
@@ -196,7 +210,8 @@ class MultiAction(Protocol):
 
     def confidence(self, items: ActionItems, evaluator) -> np.ndarray:
         """The evaluator's softmax probability of each item's own tag on its real action."""
-        _, logits = self._encode(evaluator, items.real(), derive_seed(0, self.id, "confidence"))
+        _, logits = self._encode(evaluator, items.real(),
+                                 derive_seed(0, MultiAction.id, "confidence"))
         z = np.asarray(logits, dtype=np.float64)
         z = z - z.max(axis=1, keepdims=True)
         p = np.exp(z)
@@ -230,13 +245,16 @@ class MultiAction(Protocol):
         by_tag = {c: cand[labels[cand] == c] for c in range(C)}
         has = np.array([by_tag[c].size > 0 for c in range(C)])
         counts = self.transition_counts(clipset)
-        # "multi_action", not self.id: Table 5 (ss_ar) scores the same overall set as Table 3
-        rng = numpy_rng(p.test_set_seed, "multi_action", "test_set", p.test_set)
+        # MultiAction.id, not self.id: Table 5 (ss_ar) scores the same overall set as Table 3;
+        # the first actions do not depend on the set either (overall and sufficient start alike)
+        first_rng = numpy_rng(p.test_set_seed, MultiAction.id, "first_actions")
+        rng = numpy_rng(p.test_set_seed, MultiAction.id, "test_set", p.test_set)
         S = cand.size if p.sequences is None else p.sequences
         if S <= cand.size:
-            first = np.sort(rng.choice(cand, size=S, replace=False))
-        else:
-            first = np.concatenate([cand, rng.choice(cand, size=S - cand.size, replace=True)])
+            first = np.sort(first_rng.choice(cand, size=S, replace=False))
+        else:  # more sequences than candidates: every candidate once, the rest drawn again
+            first = np.concatenate([cand, first_rng.choice(cand, size=S - cand.size,
+                                                           replace=True)])
         L = p.actions_per_sequence
         acts = np.empty((S, L), np.int64)
         acts[:, 0] = first
@@ -329,12 +347,26 @@ class MultiAction(Protocol):
                                   test_set_key=ts.key())
 
     # -- scoring ----------------------------------------------------------------------------
-    def fid_reference(self, items: ActionItems, ts: TestSet, evaluator):
+    def fid_reference(self, items: ActionItems, ts: TestSet, evaluator) -> "FidReference":
+        """The real feature statistics FID compares with (``fid_reference``): the real actions
+        at the test set's positions — pooled from ``score_from_action`` on for ``fid``, per
+        index for ``fid@x``, so reference and generated share their tag mix — or every
+        candidate once (the same statistics for all)."""
         from repro.metrics.fid import FeatureStats
 
-        sub = items.subset(ts.candidates)
-        feats, _ = self._encode(evaluator, sub.real(), derive_seed(0, self.id, "fid-reference"))
-        return FeatureStats.of(feats)
+        p = self.params
+        S, L = ts.actions.shape
+        seed = derive_seed(0, MultiAction.id, "fid-reference")
+        if p.fid_reference == "candidates":
+            feats, _ = self._encode(evaluator, items.subset(ts.candidates).real(), seed)
+            one = FeatureStats.of(feats)
+            return FidReference(one, [one] * L)
+        feats, _ = self._encode(evaluator, items.subset(ts.actions.reshape(-1)).real(), seed)
+        feats = np.asarray(feats).reshape(S, L, -1)
+        f = p.score_from_action - 1
+        pooled = FeatureStats.of(feats[:, f:].reshape(-1, feats.shape[-1]))
+        per = [FeatureStats.of(feats[:, i]) if S >= 2 else None for i in range(L)]
+        return FidReference(pooled, per)
 
     def measure(self, generated: MultiActionSamples, items: ActionItems, evaluator, *, seed: int,
                 clipset=None, reference=None) -> dict[str, float]:
@@ -357,17 +389,21 @@ class MultiAction(Protocol):
         correct = (np.asarray(logits).argmax(1) == generated.labels.numpy()).reshape(S, L)
         feats = np.asarray(feats).reshape(S, L, -1)
         out = self._quality(feats, correct, reference)
-        # transitions: joints at the junction into action i (i >= 2)
-        joints = generated.joints().detach().numpy().reshape(S, L, generated.motion.n_frames, -1, 3)
+        # transitions: the junction into action i (i >= 2); joints one action index at a time
         lens = generated.lengths.numpy().reshape(S, L)
+        rows = np.arange(S) * L
         pg, vg = np.full((S, L), np.nan), np.full((S, L), np.nan)
-        for i in range(1, L):
-            prev = [joints[s, i - 1, :lens[s, i - 1]] for s in range(S)]
-            cur = [joints[s, i, :lens[s, i]] for s in range(S)]
-            pg[:, i] = pose_gap(prev, cur, reduce="none")
-            vg[:, i] = velocity_gap(prev, cur, frames=self.params.vel_gap_frames, reduce="none")
-        f = self.params.score_from_action - 1
-        lo = max(f, 1)
+        prev_j = None
+        for i in range(L):
+            cur_j = generated.motion.select(torch.from_numpy(rows + i)).joints().detach().numpy()
+            if i:
+                prev = [prev_j[s, :lens[s, i - 1]] for s in range(S)]
+                cur = [cur_j[s, :lens[s, i]] for s in range(S)]
+                pg[:, i] = pose_gap(prev, cur, reduce="none")
+                vg[:, i] = velocity_gap(prev, cur, frames=self.params.vel_gap_frames,
+                                        reduce="none")
+            prev_j = cur_j
+        lo = max(self.params.score_from_action - 1, 1)
         out["pose_gap"] = float(np.mean(pg[:, lo:]))
         out["vel_gap"] = float(np.mean(vg[:, lo:]))
         for i in range(1, L):
@@ -389,8 +425,8 @@ class MultiAction(Protocol):
         out: dict[str, float] = {}
         out["acc"] = float(correct[:, f:].mean())
         pooled = feats[:, f:].reshape(-1, feats.shape[-1])
-        out["fid"] = fid(pooled, reference, method=p.fid_method).value if pooled.shape[0] >= 2 \
-            else float("nan")
+        out["fid"] = fid(pooled, reference.pooled, method=p.fid_method).value \
+            if pooled.shape[0] >= 2 else float("nan")
         out["action_qr"], out["motion_qr"] = qualification_ratios(correct, from_action=f)
         if p.qr_over_prefix:
             aq, mq = qualification_curves(correct, from_action=0)
@@ -398,8 +434,9 @@ class MultiAction(Protocol):
             aq, mq = correct.mean(0), correct.mean(0)
         for i in range(L):
             out[f"acc@{i + 1}"] = float(correct[:, i].mean())
-            out[f"fid@{i + 1}"] = (fid(feats[:, i], reference, method=p.fid_method).value
-                                   if S >= 2 else float("nan"))
+            ref = reference.per_index[i]
+            out[f"fid@{i + 1}"] = (fid(feats[:, i], ref, method=p.fid_method).value
+                                   if S >= 2 and ref is not None else float("nan"))
             out[f"action_qr@{i + 1}"] = float(aq[i])
             out[f"motion_qr@{i + 1}"] = float(mq[i])
         return out

@@ -177,9 +177,11 @@ class SingleAction(Protocol):
     def item_source(self) -> ItemSource:
         """How items are made (shared with the multi-action protocols and the training step)."""
         p = self.params
-        return ItemSource(context=p.context, fps=p.fps, split=p.split, split_seed=p.split_seed,
-                          test_fraction=p.test_fraction, test_cap_per_class=p.test_cap_per_class,
-                          n_init=p.initial_frames, max_frames=p.max_frames, compose=p.compose)
+        return ItemSource.make(f"protocol {self.id!r}", context=p.context, fps=p.fps,
+                               split=p.split, split_seed=p.split_seed,
+                               test_fraction=p.test_fraction,
+                               test_cap_per_class=p.test_cap_per_class, n_init=p.initial_frames,
+                               max_frames=p.max_frames, compose=p.compose)
 
     def split_clipset(self, clipset):
         """``clipset`` with the protocol's train/test split (train the evaluator on this one

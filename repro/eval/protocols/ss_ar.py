@@ -7,11 +7,12 @@ offers the schemes (:class:`repro.models.neural_marionette.NeuralMarionette`) ge
 
 - the **Shadow Start** bank: the BOP embeddings of the training items
   (``set_shadow_bank(train_items)``, Eq. 6's candidate set);
-- the **Action Revision** classifier ``F_c``: ``classify(actions) -> correct`` from the
-  protocol's evaluator (``revision_classifier = "evaluator"``, our reading: the paper names
-  "an action classifier" and its recognition network is the one that scores Acc; accuracy is
-  then taken on the final actions, which favours AR — say so when reading Table 5), or an
-  evaluator of the same kind trained with another seed (``"independent"``).
+- the **Action Revision** classifier ``F_c``: ``classify(actions) -> correct``.  The paper
+  names "an action classifier F_c" without saying whether it is the recognition network that
+  scores Acc.  If it were, every action AR keeps would be scored correct by construction
+  (Acc = a + (1 − a)·r), so the default is an independent classifier: another architecture
+  (``revision_classifier_kind = "a2m_gru"``) trained with another seed on the same training
+  split; ``revision_classifier = "evaluator"`` is the optimistic reading, kept as an option.
 
 A plain generator (the MARIONET row) runs the pure generative pipeline.  The fraction of
 actions Action Revision regenerated is kept with the samples (``revised``) and reported as the
@@ -34,8 +35,11 @@ from repro.seeding import derive_seed
 
 class SsArParams(MultiActionParams):
     pipeline: Literal["pure_generative", "neural_marionette"] = "neural_marionette"
-    revision_classifier: Literal["evaluator", "independent"] = Field(
-        "evaluator", description="F_c of Action Revision: the scoring evaluator or another seed's")
+    revision_classifier: Literal["independent", "evaluator"] = Field(
+        "independent", description="F_c of Action Revision: a classifier of its own "
+        "(revision_classifier_kind, _seed) or the scoring evaluator itself")
+    revision_classifier_kind: Literal["a2m_gru", "transformer", "uestc_gru"] = Field(
+        "a2m_gru", description="architecture of an independent F_c (another than the scorer's)")
     revision_classifier_seed: int = Field(1, description="training seed of an independent F_c")
 
 
@@ -54,14 +58,16 @@ class SsAr(MultiAction):
         return derive_seed(seed, "protocol", MultiAction.id, "replicate", int(replicate))
 
     def revision_classifier(self, evaluator, evaluator_factory=None):
-        """``F_c``: the evaluator itself, or one of the same kind and settings trained with
-        ``revision_classifier_seed`` (``evaluator_factory(seed)``, given by the engine)."""
+        """``F_c``: a classifier of ``revision_classifier_kind`` trained with
+        ``revision_classifier_seed`` on the same training split and heading mode
+        (``evaluator_factory(kind, seed)``, given by the engine), or the evaluator itself."""
         if self.params.revision_classifier == "evaluator":
             return evaluator
         if evaluator_factory is None:
             raise ConfigError("revision_classifier 'independent' needs the engine's evaluator "
                               "factory")
-        return evaluator_factory(self.params.revision_classifier_seed)
+        return evaluator_factory(self.params.revision_classifier_kind,
+                                 self.params.revision_classifier_seed)
 
     def _sampler(self, generator, clipset, evaluator, evaluator_factory=None):
         if not hasattr(generator, "set_shadow_bank"):
@@ -72,7 +78,7 @@ class SsAr(MultiAction):
         fc = self.revision_classifier(evaluator, evaluator_factory)
 
         def classify(actions):
-            _, logits = self._encode(fc, actions, derive_seed(0, self.id, "revision"))
+            _, logits = self._encode(fc, actions, derive_seed(0, MultiAction.id, "revision"))
             return torch.from_numpy(np.asarray(logits).argmax(1) == actions.labels.numpy())
 
         def fn(cond, seed):
