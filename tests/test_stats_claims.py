@@ -82,3 +82,14 @@ def test_calibration_fast():
 def test_calibration_full():  # the issue's 200 + 200 tables, in `make test` (~15-40 s)
     assert _calibration(200, 0.0, seed=10) <= _null_bound(200)
     assert _calibration(200, 2.0, seed=11) >= 0.95 * 200
+
+
+def test_a_row_without_spread_beside_a_row_with_little_is_still_decided():
+    """One row's replicates identical, the other's spread tiny: emcee's initial-state check
+    would refuse the ensemble (seen on a multi-action figure); the claim still gets a verdict."""
+    from repro.stats.claims import claim_probability
+
+    a = [0.5, 0.5, 0.5]
+    for b in ([0.30, 0.30000001, 0.29999999], [0.9, 0.9000001, 0.9000002]):
+        res = claim_probability(b, a, "lower")
+        assert res.verdict in ("supported", "contradicted", "inconclusive")
