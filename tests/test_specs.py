@@ -404,6 +404,6 @@ def test_protocol_settings_layer_spec_group_and_scale(specs):
     quick, paper = resolve_scale("quick"), resolve_scale("paper")
     sq = quick.protocol_settings(t3, "sufficient.acc")
     assert sq["test_set"] == "sufficient" and sq["sufficient_top_k"] == 4   # spec group
-    assert sq["actions_per_sequence"] == 6 and sq["sequences"] == 12         # quick shrinks
+    assert sq["actions_per_sequence"] == 10 and sq["sequences"] == 12        # quick shrinks
     sp = paper.protocol_settings(t3, "overall.acc")
     assert (sp["test_set"], sp["sequences"], sp["actions_per_sequence"]) == ("overall", 764, 20)

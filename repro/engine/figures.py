@@ -262,6 +262,16 @@ def _trend_along_x(spec, cl, cells, values, xs_by_col, lo, hi, base) -> dict:
 # the view
 
 
+def column_views(spec) -> list:
+    """One ColumnView per spec column, labelled "group: column" inside a column group."""
+    cols = []
+    for c in spec.columns:
+        g = spec.group_of(c.id)
+        label = f"{g.label}: {c.label}" if g is not None else c.label
+        cols.append(ColumnView(c.id, label, c.direction or "", c.unit or ""))
+    return cols
+
+
 def figure_view(spec, plan_rows: dict[str, dict], summary: dict | None, footer: list[str],
                 standin: str | None, paper_title: str, unbuilt: dict[str, str],
                 claims: list) -> FigureView:
@@ -271,11 +281,7 @@ def figure_view(spec, plan_rows: dict[str, dict], summary: dict | None, footer: 
     xs = sorted({x for cols in cells.values() for cid in cols
                  for x in [split_cell_id(cid)[1]]
                  if x is not None and spec.x.start <= x <= spec.x.stop})
-    cols = []
-    for c in spec.columns:
-        g = spec.group_of(c.id)
-        label = f"{g.label}: {c.label}" if g is not None else c.label
-        cols.append(ColumnView(c.id, label, c.direction or "", c.unit or ""))
+    cols = column_views(spec)
     rows = []
     for row in spec.rows:
         st = plan_rows.get(row.id, {}).get("status", NOT_RUN)

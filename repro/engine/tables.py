@@ -41,7 +41,7 @@ from typing import Any
 
 from repro.engine.job import Job
 from repro.report.view import (DATA_UNAVAILABLE, NOT_IMPLEMENTED, NOT_RUN, OK,
-                               CellView, ClaimView, ColumnView, RowView, TableView)
+                               CellView, ClaimView, RowView, TableView)
 
 STEPS = "repro.engine.steps"
 SUMMARY_SCHEMA = 1
@@ -494,18 +494,14 @@ def make_view(spec, plan_rows: dict[str, dict], summary: dict | None, footer: li
     """The reported-vs-reproduced view from a spec and (optionally) a run's summary;
     ``unbuilt`` names the columns whose protocol is not built (they read "not implemented").
     A figure's view has its per-x cells (:func:`repro.engine.figures.figure_view`)."""
-    from repro.engine.figures import figure_view, is_figure
+    from repro.engine.figures import column_views, figure_view, is_figure
 
     cells = (summary or {}).get("cells", {})
     unbuilt = (summary or {}).get("unbuilt_columns", {}) if unbuilt is None else unbuilt
     if is_figure(spec):
         return figure_view(spec, plan_rows, summary, footer, _standin(dataset),
                            _paper_title(spec), unbuilt, _claim_views(spec, summary))
-    cols = []
-    for c in spec.columns:
-        g = spec.group_of(c.id)
-        label = f"{g.label}: {c.label}" if g is not None else c.label
-        cols.append(ColumnView(c.id, label, c.direction or "", c.unit or ""))
+    cols = column_views(spec)
     rows = []
     for row in spec.rows:
         st = plan_rows.get(row.id, {}).get("status", NOT_RUN)
