@@ -9,6 +9,27 @@ import sys
 SCALES = ("quick", "medium", "paper")
 
 
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1 (``--jobs``)."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {v}")
+    return v
+
+
+def output_format(text: str) -> str:
+    """argparse type: a report format, checked before anything is computed."""
+    from repro.report import FORMATS
+
+    if text not in FORMATS:
+        raise argparse.ArgumentTypeError(f"unknown format {text!r} (choose from "
+                                         f"{', '.join(FORMATS)})")
+    return text
+
+
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scale", default="quick", help="quick | medium | paper (default: quick)")
     p.add_argument("--dataset", default=None, help="override the scale profile's data set")
@@ -40,7 +61,7 @@ def register(sub) -> None:
                        "--jobs N overlaps their trainings); each gets its own run record.")
     p.add_argument("tables", nargs="+", metavar="TABLE")
     _common(p)
-    p.add_argument("--jobs", type=int, default=1,
+    p.add_argument("--jobs", type=positive_int, default=1,
                    help="jobs run side by side (default 1); each computes with the scale's "
                    "`threads` (1), so N up to the core count; results do not depend on N")
     p.add_argument("--force", nargs="?", const=True, default=None, metavar="KIND",
@@ -48,7 +69,8 @@ def register(sub) -> None:
     p.add_argument("--seeds", default=None, help="replicate seeds, e.g. 0-9 or 0,3,7 (default: the "
                    "scale's); the first is also the training seed")
     _retrain_option(p)
-    p.add_argument("--format", default="term", help="term | md | latex | html | json | csv")
+    p.add_argument("--format", default="term", type=output_format,
+                   help="term | md | latex | html | json | csv")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_run)
 
@@ -56,13 +78,14 @@ def register(sub) -> None:
     p.add_argument("table")
     _common(p)
     p.add_argument("--run", default=None, help="a run id (default: the newest finished run)")
-    p.add_argument("--format", default="term", help="term | md | latex | html | json | csv")
+    p.add_argument("--format", default="term", type=output_format,
+                   help="term | md | latex | html | json | csv")
     p.set_defaults(func=cmd_show)
 
     p = sub.add_parser("rescore", help="recompute metrics and intervals from stored samples")
     p.add_argument("table")
     _common(p)
-    p.add_argument("--format", default="term")
+    p.add_argument("--format", default="term", type=output_format)
     p.set_defaults(func=cmd_rescore)
 
     p = sub.add_parser("verify", help="compare the newest run with a committed baseline (exit 1 on drift)")
@@ -105,7 +128,7 @@ def cmd_plan(args) -> int:
     from repro.engine.tables import parse_seeds
 
     entries = plan_table(args.table, scale=args.scale, dataset=args.dataset, why=args.why,
-                         seeds=parse_seeds(args.seeds) if args.seeds else None,
+                         seeds=parse_seeds(args.seeds) if args.seeds is not None else None,
                          retrain=args.retrain)
     if args.json:
         print(json.dumps(entries, indent=2))
@@ -130,7 +153,7 @@ def cmd_run(args) -> int:
     rc = 0
     runs = run_tables(args.tables, scale=args.scale, dataset=args.dataset, jobs=args.jobs,
                       force=args.force, progress=not args.quiet and sys.stderr.isatty(),
-                      seeds=parse_seeds(args.seeds) if args.seeds else None,
+                      seeds=parse_seeds(args.seeds) if args.seeds is not None else None,
                       retrain=args.retrain)
     for plan, summary, run_id in runs:
         name = plan.spec.id

@@ -164,19 +164,28 @@ def _method_config(method: str, scale, overrides: dict) -> tuple[dict | None, st
     return cfg.model_dump(mode="json"), None
 
 
+#: at most this many replicate seeds in one ``--seeds`` (a typo must not allocate billions)
+MAX_SEEDS = 10_000
+
+
 def parse_seeds(text: str) -> tuple[int, ...]:
-    """``"0-4"`` → (0, 1, 2, 3, 4); ``"0,3,7"`` → (0, 3, 7) (``--seeds``)."""
+    """``"0-4"`` → (0, 1, 2, 3, 4); ``"0,3,7"`` → (0, 3, 7) (``--seeds``; at most
+    :data:`MAX_SEEDS` of them)."""
     from repro.errors import ConfigError
 
+    shown = text if len(text) <= 40 else text[:37] + "..."
     try:
         out: list[int] = []
         for part in text.split(","):
             a, sep, b = part.strip().partition("-")
-            out.extend(range(int(a), int(b) + 1) if sep else [int(a)])
+            lo, hi = (int(a), int(b)) if sep else (int(a), int(a))
+            if hi - lo + 1 + len(out) > MAX_SEEDS:
+                raise ConfigError(f"--seeds {shown!r}: more than {MAX_SEEDS} seeds")
+            out.extend(range(lo, hi + 1))
     except ValueError:
-        raise ConfigError(f"--seeds {text!r}: give seeds as '0-4' or '0,3,7'") from None
+        raise ConfigError(f"--seeds {shown!r}: give seeds as '0-4' or '0,3,7'") from None
     if not out or len(set(out)) != len(out) or min(out) < 0:
-        raise ConfigError(f"--seeds {text!r}: seeds must be distinct non-negative integers")
+        raise ConfigError(f"--seeds {shown!r}: seeds must be distinct non-negative integers")
     return tuple(out)
 
 

@@ -1,0 +1,50 @@
+"""Bad options end before anything is computed: one error line naming the option, exit 2, no
+traceback, no run recorded (issue 16's crash paths for the table and eval commands)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from repro.paths import repo_root
+
+
+def _repro(*args, home):
+    env = {**os.environ, "REPRO_HOME": str(home)}
+    return subprocess.run([sys.executable, "-m", "cli.main", *args], capture_output=True,
+                          text=True, env=env, cwd=repo_root(), timeout=120)
+
+
+@pytest.mark.parametrize("args, says", [
+    (["run", "marionette/table1", "--jobs", "0"], "--jobs: must be at least 1"),
+    (["run", "marionette/table1", "--jobs", "-1"], "--jobs: must be at least 1"),
+    (["run", "marionette/table1", "--jobs", "two"], "--jobs: 'two' is not an integer"),
+    (["run", "marionette/table1", "--format", "xml"], "--format: unknown format 'xml'"),
+    (["show", "marionette/table1", "--format", "xml"], "--format: unknown format 'xml'"),
+    (["run", "marionette/table1", "--seeds", ""], "--seeds ''"),
+    (["run", "marionette/table1", "--seeds", "0-99999999999"], "more than 10000 seeds"),
+    (["plan", "marionette/table1", "--seeds", "0-99999999999"], "more than 10000 seeds"),
+    (["eval", "classifier", "--dataset", "bandai2-mini", "--train-seed", "-1"],
+     "--train-seed: a seed must be >= 0"),
+])
+def test_bad_option_is_one_line_exit_2_and_nothing_runs(args, says, tmp_path):
+    out = _repro(*args, home=tmp_path)
+    assert out.returncode == 2, out.stderr
+    assert says in out.stderr
+    assert "Traceback" not in out.stderr
+    assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
+
+
+def test_parse_seeds_caps_before_allocating():
+    from repro.engine.tables import MAX_SEEDS, parse_seeds
+    from repro.errors import ConfigError
+
+    assert parse_seeds("0-4") == (0, 1, 2, 3, 4) and parse_seeds("0,3,7") == (0, 3, 7)
+    assert len(parse_seeds(f"0-{MAX_SEEDS - 1}")) == MAX_SEEDS
+    with pytest.raises(ConfigError, match="more than"):
+        parse_seeds(f"0-{MAX_SEEDS}")
+    with pytest.raises(ConfigError, match=r"\.\.\."):  # a long argument is shortened in the message
+        parse_seeds("9" * 5000 + "x")
