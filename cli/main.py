@@ -45,6 +45,18 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: an error message longer than this is shortened in the middle (a value quoted in it may be
+#: megabytes long: a 5,000,000-digit number, a pasted file)
+MAX_ERROR_CHARS = 2000
+
+
+def _one_line(msg: str) -> str:
+    if len(msg) <= MAX_ERROR_CHARS:
+        return msg
+    half = MAX_ERROR_CHARS // 2
+    return f"{msg[:half]} … [{len(msg) - 2 * half} characters left out] … {msg[-half:]}"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -57,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         rc = func(args)
     except ReproError as e:
-        print(f"repro: error: {e}", file=sys.stderr)
+        print(f"repro: error: {_one_line(str(e))}", file=sys.stderr)
         return e.exit_code
     except KeyboardInterrupt:
         print("repro: interrupted", file=sys.stderr)

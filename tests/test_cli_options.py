@@ -48,3 +48,27 @@ def test_parse_seeds_caps_before_allocating():
         parse_seeds(f"0-{MAX_SEEDS}")
     with pytest.raises(ConfigError, match=r"\.\.\."):  # a long argument is shortened in the message
         parse_seeds("9" * 5000 + "x")
+
+
+def test_rescore_without_an_earlier_run_says_so_and_trains_nothing(tmp_path):
+    out = _repro("rescore", "marionette/table1", home=tmp_path)
+    assert out.returncode == 2 and "Traceback" not in out.stderr
+    assert "no earlier run" in out.stderr and "repro run marionette/table1" in out.stderr
+    store = tmp_path / "store" / "objects"
+    assert not store.exists() or not any(store.rglob("weights.pt"))
+
+
+def test_a_huge_value_quoted_in_an_error_is_shortened(tmp_path):
+    out = _repro("run", "marionette/table1", "--seeds", "1" * 100_000 + "x", home=tmp_path)
+    assert out.returncode == 2 and "Traceback" not in out.stderr
+    assert len(out.stderr) < 5000
+
+
+def test_error_messages_are_shortened_in_the_middle():
+    from cli.main import MAX_ERROR_CHARS, _one_line
+
+    assert _one_line("short") == "short"
+    long = "a" * 3000 + "b" * 3000
+    got = _one_line(long)
+    assert len(got) < MAX_ERROR_CHARS + 100 and got.startswith("a") and got.endswith("b")
+    assert "characters left out" in got

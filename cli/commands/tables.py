@@ -185,9 +185,15 @@ def cmd_show(args) -> int:
 
 
 def cmd_rescore(args) -> int:
-    from repro.engine.runner import run_table, table_view
+    from repro.engine.runner import _scale, _spec, latest_run, run_table, table_view
+    from repro.errors import ConfigError
     from repro.report import render
 
+    spec, sc = _spec(args.table), _scale(args.scale, args.dataset)
+    ds = args.dataset or sc.dataset_for(spec)
+    if latest_run(spec.id, sc.name, ds) is None:  # nothing stored to re-measure: say so, train nothing
+        raise ConfigError(f"{spec.id}: no earlier run at scale {sc.name} on {ds} to rescore; "
+                          f"run: repro run {spec.id} --scale {sc.name}")
     _, _, run_id = run_table(args.table, scale=args.scale, dataset=args.dataset,
                              force="measure", progress=sys.stderr.isatty())
     sys.stdout.write(render(table_view(args.table, scale=args.scale, dataset=args.dataset,
