@@ -3,3 +3,21 @@
 Modules must import only the standard library at import time (``repro --help`` answers in
 well under half a second); heavy imports (torch, numpy, ...) go inside the handlers.
 """
+
+
+def int_at_least(minimum: int, rule: str | None = None):
+    """An argparse ``type``: an integer >= ``minimum``; ``rule`` (with ``{v}``) words the refusal
+    (default: "must be at least <minimum>, got <v>")."""
+    import argparse
+
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        if v < minimum:
+            raise argparse.ArgumentTypeError((rule or f"must be at least {minimum}, got {{v}}")
+                                             .format(v=v))
+        return v
+
+    return parse

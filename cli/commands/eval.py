@@ -6,20 +6,9 @@ from __future__ import annotations
 import json
 import sys
 
+from cli.commands import int_at_least
+
 KINDS = ("a2m_gru", "uestc_gru", "transformer")
-
-
-def _seed(text: str) -> int:
-    """argparse type: a non-negative integer seed."""
-    import argparse
-
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"a seed must be >= 0, got {v}")
-    return v
 
 
 def register(subparsers) -> None:
@@ -35,7 +24,8 @@ def register(subparsers) -> None:
         sp.add_argument("--kind", default="a2m_gru", choices=KINDS, help="recogniser (default a2m_gru)")
         sp.add_argument("--heading", default=None, choices=("raw", "yaw_augment", "remove"),
                         help="heading mode (default: the scale's, raw = A2M/ODMO convention)")
-        sp.add_argument("--train-seed", type=_seed, default=0,
+        sp.add_argument("--train-seed", type=int_at_least(0, "a seed must be >= 0, got {v}"),
+                        default=0,
                         help="classifier training seed (default 0)")
         sp.add_argument("--json", action="store_true", help="machine-readable output")
 

@@ -6,18 +6,9 @@ import argparse
 import json
 import sys
 
+from cli.commands import int_at_least
+
 SCALES = ("quick", "medium", "paper")
-
-
-def positive_int(text: str) -> int:
-    """argparse type: an integer >= 1 (``--jobs``)."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {v}")
-    return v
 
 
 def output_format(text: str) -> str:
@@ -61,7 +52,7 @@ def register(sub) -> None:
                        "--jobs N overlaps their trainings); each gets its own run record.")
     p.add_argument("tables", nargs="+", metavar="TABLE")
     _common(p)
-    p.add_argument("--jobs", type=positive_int, default=1,
+    p.add_argument("--jobs", type=int_at_least(1), default=1,
                    help="jobs run side by side (default 1); each computes with the scale's "
                    "`threads` (1), so N up to the core count; results do not depend on N")
     p.add_argument("--force", nargs="?", const=True, default=None, metavar="KIND",

@@ -70,6 +70,36 @@ def _claim_line(cl) -> str:
     return f"{cl.verdict.upper()}{p}: {cl.text}{r}"
 
 
+def _term_tail(console, view) -> None:
+    """Claims and footer under a terminal table or figure."""
+    if view.claims:
+        console.print("Claims:")
+        for cl in view.claims:
+            console.print(f"  {_claim_line(cl)}", highlight=False, markup=False)
+    for line in view.footer:
+        console.print(line, highlight=False, markup=False)
+
+
+def _md_tail(view) -> list[str]:
+    """Claims and footer lines under a Markdown table or figure."""
+    lines: list[str] = []
+    if view.claims:
+        lines += ["", "**Claims**", ""] + [f"- {_claim_line(cl)}" for cl in view.claims]
+    if view.footer:
+        lines += [""] + [f"{x}  " for x in view.footer]
+    return lines
+
+
+def _html_tail(view) -> list[str]:
+    """Claims and footer elements under an HTML table or figure."""
+    e = html.escape
+    out = []
+    if view.claims:
+        out.append("<ul>" + "".join(f"<li>{e(_claim_line(cl))}</li>" for cl in view.claims)
+                   + "</ul>")
+    return out + [f"<p>{e(x)}</p>" for x in view.footer]
+
+
 def render(view: TableView, fmt: str = "term") -> str:
     if fmt not in FORMATS:
         from repro.errors import ConfigError
@@ -100,12 +130,7 @@ def _render_term(view: TableView) -> str:
     console = Console(file=buf, width=max(100, 26 * (len(view.columns) + 1)), force_terminal=False,
                       color_system=None)
     console.print(table)
-    if view.claims:
-        console.print("Claims:")
-        for cl in view.claims:
-            console.print(f"  {_claim_line(cl)}", highlight=False, markup=False)
-    for line in view.footer:
-        console.print(line, highlight=False, markup=False)
+    _term_tail(console, view)
     return buf.getvalue()
 
 
@@ -118,11 +143,7 @@ def _render_md(view: TableView) -> str:
                                                               for c in view.columns]) + " |")
         lines.append("| " + " | ".join(["", "ours"] + [ours_text(row.cells.get(c.id, CellView(status=row.status)))
                                                        for c in view.columns]) + " |")
-    if view.claims:
-        lines += ["", "**Claims**", ""] + [f"- {_claim_line(cl)}" for cl in view.claims]
-    if view.footer:
-        lines += [""] + [f"{x}  " for x in view.footer]
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines + _md_tail(view)) + "\n"
 
 
 def _tex(s: str) -> str:
@@ -159,10 +180,7 @@ def _render_html(view: TableView) -> str:
         out.append("<tr><td></td><td>ours</td>" + "".join(
             f"<td>{e(ours_text(row.cells.get(c.id, CellView(status=row.status))))}</td>" for c in view.columns) + "</tr>")
     out.append("</table>")
-    if view.claims:
-        out.append("<ul>" + "".join(f"<li>{e(_claim_line(cl))}</li>" for cl in view.claims) + "</ul>")
-    out += [f"<p>{e(x)}</p>" for x in view.footer]
-    return "\n".join(out) + "\n"
+    return "\n".join(out + _html_tail(view)) + "\n"
 
 
 def _render_json(view: TableView) -> str:
@@ -217,12 +235,7 @@ def _figure_term(view: FigureView) -> str:
         for xs, key in view.cell_keys(col.id):
             table.add_row(Text(xs), *[Text(_figure_cell(row, key)) for row in view.rows])
         console.print(table)
-    if view.claims:
-        console.print("Claims:")
-        for cl in view.claims:
-            console.print(f"  {_claim_line(cl)}", highlight=False, markup=False)
-    for line in view.footer:
-        console.print(line, highlight=False, markup=False)
+    _term_tail(console, view)
     return buf.getvalue()
 
 
@@ -235,11 +248,7 @@ def _figure_md(view: FigureView) -> str:
                   "|" + "---|" * len(head)]
         for xs, key in view.cell_keys(col.id):
             lines.append("| " + " | ".join([xs] + [_figure_cell(r, key) for r in view.rows]) + " |")
-    if view.claims:
-        lines += ["", "**Claims**", ""] + [f"- {_claim_line(cl)}" for cl in view.claims]
-    if view.footer:
-        lines += [""] + [f"{x}  " for x in view.footer]
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines + _md_tail(view)) + "\n"
 
 
 def _figure_latex(view: FigureView) -> str:
@@ -276,11 +285,7 @@ def _figure_html(view: FigureView) -> str:
             out.append(f"<tr><td>{e(xs)}</td>" + "".join(
                 f"<td>{e(_figure_cell(r, key))}</td>" for r in view.rows) + "</tr>")
         out.append("</table>")
-    if view.claims:
-        out.append("<ul>" + "".join(f"<li>{e(_claim_line(cl))}</li>" for cl in view.claims)
-                   + "</ul>")
-    out += [f"<p>{e(x)}</p>" for x in view.footer]
-    return "\n".join(out) + "\n"
+    return "\n".join(out + _html_tail(view)) + "\n"
 
 
 def _figure_csv(view: FigureView) -> str:
