@@ -72,3 +72,20 @@ def test_error_messages_are_shortened_in_the_middle():
     got = _one_line(long)
     assert len(got) < MAX_ERROR_CHARS + 100 and got.startswith("a") and got.endswith("b")
     assert "characters left out" in got
+
+
+def test_a_deeply_nested_spec_is_one_clear_error(tmp_path):
+    """Issue 16 (part): nesting that would make the TOML parser (or anything after it) recurse
+    past Python's limit is refused with one line naming the file, exit code 2."""
+    import subprocess
+    import sys
+
+    for name, text in (("deep.toml", "x = " + "[" * 5000 + "]" * 5000),
+                       ("deeptable.toml", "x = " + "{a = " * 3000 + "1" + "}" * 3000),
+                       ("nested40.toml", "x = " + "[" * 40 + "]" * 40)):
+        f = tmp_path / name
+        f.write_text(text)
+        r = subprocess.run([sys.executable, "-m", "cli.main", "spec", "check", str(f)],
+                           capture_output=True, text=True)
+        assert r.returncode == 2, r.stderr
+        assert "Traceback" not in r.stderr and name in r.stderr and "nested" in r.stderr

@@ -106,3 +106,23 @@ def test_bad_input_is_a_data_error():
         fid(bad, rng.normal(size=(10, 3)))
     with pytest.raises(DataError, match="unknown method"):
         fid(rng.normal(size=(10, 3)), rng.normal(size=(10, 3)), method="svd")
+
+
+def test_scipy_route_checks_only_the_diagonal_imaginary_part(monkeypatch):
+    """Regression (issue 11): the references accept a square root whose off-diagonal entries
+    carry imaginary round-off (they test ``np.diagonal(covmean).imag``); a large imaginary
+    part on the diagonal is still refused."""
+    import scipy.linalg
+
+    from repro.metrics import fid as fid_mod
+
+    s = np.eye(3)
+    off = np.eye(3) + 0j
+    off[0, 1] = 1.0 + 0.5j  # large imaginary part off the diagonal only
+    monkeypatch.setattr(scipy.linalg, "sqrtm", lambda m: off)
+    assert fid_mod._trace_sqrt_product_scipy(s, s) == pytest.approx(3.0)
+    bad = np.eye(3) + 0j
+    bad[1, 1] = 1.0 + 0.01j
+    monkeypatch.setattr(scipy.linalg, "sqrtm", lambda m: bad)
+    with pytest.raises(DataError, match="diagonal"):
+        fid_mod._trace_sqrt_product_scipy(s, s)

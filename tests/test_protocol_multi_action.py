@@ -155,6 +155,14 @@ def test_measure_columns_and_round_trip(setup, tmp_path):
     assert all(a >= b for a, b in zip(mq, mq[1:]))
     real = proto.real_replicate(clips, items, ev, seed=0, replicate=0)
     assert set(real) >= {"acc", "fid", "action_qr", "motion_qr"} and "pose_gap" not in real
+    # harness columns (issue 11): over the scored actions; the real row's nearest-training
+    # distance is clearly above zero (test actions are not training actions)
+    for m in ("nn_train_feat", "nn_train_joint", "precision", "recall", "density", "coverage"):
+        assert np.isfinite(vals[m]), m
+    assert real["nn_train_joint"] > 0.02 and "precision" not in real
+    off = proto.__class__(proto.params.model_copy(update={"memorisation": False}))
+    plain = off.measure(back, items, ev, seed=0, clipset=clips)
+    assert "nn_train_joint" not in plain and plain["fid"] == vals["fid"]
 
 
 def test_ss_ar_runs_neural_marionette_with_the_evaluator_as_f_c(setup):

@@ -71,7 +71,9 @@ def test_spec_and_scale_parameters_validate():
             p = get_protocol("single_action", params)
             assert p.params.initial_frames == 6 and p.params.fps == 30
     p = get_protocol("single_action", {})
-    assert set(p.metrics) == {"fid", "acc", "div", "multimod", "traj_err", "jpe"}
+    assert set(p.metrics) == {"fid", "acc", "div", "multimod", "traj_err", "jpe",
+                              "nn_train_feat", "nn_train_joint", "precision", "recall",
+                              "density", "coverage"}
     assert p.evaluator_kind == "transformer"
     d = p.describe()
     for open_choice in ("div_pairs", "multimod_pairs", "traj_plane", "jpe_mode", "fid_reference",
@@ -207,7 +209,8 @@ def test_evaluation_clips_centre_start_and_whole():
 def test_real_row_is_a_seeded_per_tag_resample(setup):
     proto, test, ev, clips = setup["proto"], setup["test"], setup["ev"], setup["clips"]
     r0 = proto.real_replicate(clips, test, ev, seed=0, replicate=0)
-    assert set(r0) == set(proto.real_metrics) == {"fid", "acc", "div", "multimod"}
+    assert set(r0) == set(proto.real_metrics) == {"fid", "acc", "div", "multimod",
+                                                  "nn_train_feat", "nn_train_joint"}
     assert r0 == proto.real_replicate(clips, test, ev, seed=0, replicate=0)
     assert r0 != proto.real_replicate(clips, test, ev, seed=0, replicate=1)
     pos = proto.real_resample(test, seed=0, replicate=0)
@@ -245,4 +248,48 @@ def test_samples_round_trip_through_npz(tmp_path, setup):
 
 def test_protocol_class_exposes_its_metadata():
     cls = protocol_class("single_action")
-    assert cls.metrics[0] == "fid" and cls.real_metrics == ("fid", "acc", "div", "multimod")
+    assert cls.metrics[0] == "fid" and cls.real_metrics[:4] == ("fid", "acc", "div", "multimod")
+
+
+# --- harness columns (issue 11, item 5) -------------------------------------------------------
+
+def test_harness_columns_expose_a_copier_and_spare_real_data(setup):
+    """The nearest-training-clip copier sits at (numerically) zero nearest-training distance in
+    joint space and below the real test actions in feature space; real test actions are
+    clearly away from every training action (no test clip is in the training bank)."""
+    proto, test, ev, clips, gen = (setup[k] for k in ("proto", "test", "ev", "clips", "gen"))
+    out = proto.generate(gen, test, seed=0, replicate=0)
+    copier = proto.measure(out, test, ev, seed=0, clipset=clips)
+    real = proto.real_replicate(clips, test, ev, seed=0, replicate=0)
+    assert copier["nn_train_joint"] < 1e-5
+    assert real["nn_train_joint"] > 0.05  # metres: fresh data is not a training action
+    # in feature space the evaluator sees the copy's own (duration-cut) window, so a copy is
+    # at zero there only when it keeps the training action's duration (docs/metrics.md)
+    assert copier["nn_train_feat"] >= 0.0 and real["nn_train_feat"] > 0.0
+    train = setup["train"].subset(np.arange(0, len(setup["train"]), 7))
+    feats, _ = proto._encode(ev, train.real(), 0)
+    exact = proto.memorisation(train.real(), feats, train, ev, clips, seed=0)
+    assert exact["nn_train_feat"] < 1e-4 and exact["nn_train_joint"] < 1e-6
+    for k in ("precision", "recall", "density", "coverage"):
+        assert 0.0 <= copier[k] <= (1.0 + 1.0 / proto.params.prdc_k if k == "density" else 1.0)
+    # without the data set the paper's columns are unchanged and the harness ones absent
+    plain = proto.measure(out, test, ev, seed=0)
+    assert "nn_train_joint" not in plain
+    assert {k: plain[k] for k in plain} == {k: copier[k] for k in plain}
+
+
+def test_harness_columns_flag_a_mode_dropping_generator(setup):
+    """A collapsed 'generator' that returns one and the same real action for every item (each
+    in its item's frame, cut or padded to its duration) covers little of the real
+    distribution: recall and coverage far below the copier's."""
+    import dataclasses
+
+    proto, test, ev, clips, gen = (setup[k] for k in ("proto", "test", "ev", "clips", "gen"))
+    longest = int(torch.argmax(test.lengths))
+    same = test.subset(np.full(len(test), longest))
+    dropped = dataclasses.replace(test, action=same.action)
+    mode_drop = proto.measure(dropped.real(), test, ev, seed=0, clipset=clips)
+    copier = proto.measure(proto.generate(gen, test, seed=0, replicate=0), test, ev, seed=0,
+                           clipset=clips)
+    assert mode_drop["recall"] < copier["recall"]
+    assert mode_drop["coverage"] < 0.5 * copier["coverage"]

@@ -47,6 +47,9 @@ def test_single_replicate_is_inconclusive_with_a_reason():
 def test_zero_spread_rows_are_decided_by_their_values_with_a_reason():
     r = claim_probability([100.0] * 10, [100.0] * 10, "lower")
     assert r.verdict == "contradicted" and "no spread" in r.reason
+    # no posterior probability is claimed for a deterministic column (issue 11)
+    assert math.isnan(r.probability) and r.decided_by == "values"
+    assert r.to_dict()["probability"] is None and "no posterior" in r.reason
     assert claim_probability([90.0] * 3, [100.0] * 3, "lower", delta=5).verdict == "supported"
     # one constant row against a noisy one still samples
     r2 = claim_probability([100.0] * 10, np.random.default_rng(2).normal(90, 1, 10), "higher")
@@ -93,3 +96,15 @@ def test_a_row_without_spread_beside_a_row_with_little_is_still_decided():
     for b in ([0.30, 0.30000001, 0.29999999], [0.9, 0.9000001, 0.9000002]):
         res = claim_probability(b, a, "lower")
         assert res.verdict in ("supported", "contradicted", "inconclusive")
+
+
+def test_a_chain_that_does_not_mix_is_inconclusive_with_the_reason():
+    """Regression (issue 11): rows 10^6 pooled sds apart put every proposal outside the
+    prior's bounds; acceptance is 0 and the ESS NaN, which used to pass ``ess < min_ess``."""
+    rng = np.random.default_rng(0)
+    r = claim_probability(80 + 1e-5 * rng.normal(size=10), 100 + 1e-5 * rng.normal(size=10))
+    assert r.acceptance == 0.0
+    assert r.verdict == "inconclusive" and "did not mix" in r.reason
+    # a mixing chain on the same ordering (ordinary spread) still decides
+    ok = claim_probability(80 + rng.normal(size=10), 100 + rng.normal(size=10))
+    assert ok.verdict == "supported" and ok.reason is None and ok.decided_by == "posterior"

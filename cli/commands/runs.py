@@ -22,9 +22,11 @@ def register(subparsers) -> None:
     ls.add_argument("--json", action="store_true", help="machine-readable output")
     ls.set_defaults(func=_ls)
 
-    show = sub.add_parser("show", help="one run: status, environment, jobs, cell values")
+    show = sub.add_parser("show", help="one run: status, environment, jobs, cell values, "
+                                       "learning curves")
     show.add_argument("run", help="run id, a unique prefix of one, or 'latest'")
-    show.add_argument("--json", action="store_true", help="run.json, values and summary as JSON")
+    show.add_argument("--json", action="store_true",
+                      help="run.json, values, summary and trainings as JSON")
     show.set_defaults(func=_show)
 
     diff = sub.add_parser("diff", help="compare runs side by side (runs as columns)")
@@ -95,6 +97,21 @@ def _console():
     return Console()
 
 
+#: written by the runner into a run folder: every trained model's training.json
+TRAININGS = "trainings.json"
+
+
+def _trainings(path) -> list[dict[str, Any]]:
+    """The ``trainings`` of a run folder's ``trainings.json`` (empty when it has none)."""
+    f = path / TRAININGS
+    if not f.is_file():
+        return []
+    try:
+        return list(json.loads(f.read_text()).get("trainings") or [])
+    except (ValueError, AttributeError):
+        return []
+
+
 # ---------------------------------------------------------------------- commands
 def _ls(args: argparse.Namespace) -> int:
     from repro.store.index import RunIndex
@@ -128,8 +145,10 @@ def _show(args: argparse.Namespace) -> int:
 
     rec = load_run(resolve_run(args.run))
     run = rec.run
+    trainings = _trainings(rec.path)
     if args.json:
-        print(json.dumps({"run": run, "values": rec.values, "summary": rec.summary}, indent=2))
+        print(json.dumps({"run": run, "values": rec.values, "summary": rec.summary,
+                          "trainings": trainings}, indent=2))
         return 0
     from rich.table import Table
 
@@ -188,6 +207,15 @@ def _show(args: argparse.Namespace) -> int:
             ct.add_row(_esc(r), _esc(c), _fmt_num(s["mean"]), str(s["n"]), _fmt_num(s["min"]),
                        _fmt_num(s["max"]))
         con.print(ct)
+    if trainings:
+        from repro.report.curves import format_learning_curve
+
+        con.print("[bold]Learning curves[/]")
+        for t in trainings:
+            con.print(f"{_esc(t.get('row'))}  ({_esc(t.get('method'))}, seed {_esc(t.get('seed'))}, "
+                      f"job {str(t.get('job'))[:12]})")
+            for line in format_learning_curve(t.get("training") or {}):
+                con.print("  " + line, markup=False, highlight=False, soft_wrap=True)
     if rec.summary is not None:
         con.print(f"summary: {rec.path / 'summary.json'}")
     return 0

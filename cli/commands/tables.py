@@ -1,4 +1,4 @@
-"""``repro list | plan | run | show | rescore | verify``: tables from spec to report."""
+"""``repro list | plan | run | sweep | show | rescore | verify``: tables from spec to report."""
 
 from __future__ import annotations
 
@@ -64,6 +64,26 @@ def register(sub) -> None:
                    help="term | md | latex | html | json | csv")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("sweep", help="rerun a table at several training budgets or with "
+                       "several evaluator seeds; cells and verdicts against the axis",
+                       description="Each point is an ordinary run (cached jobs reused; the x1 "
+                       "point and evaluator seed 0 are the plain run). The sweep record goes to "
+                       "REPRO_HOME/sweeps/.")
+    p.add_argument("table")
+    _common(p)
+    axis = p.add_mutually_exclusive_group(required=True)
+    axis.add_argument("--budget", default=None, metavar="FACTORS",
+                      help="epoch multipliers, e.g. 0.5,1,2,4")
+    axis.add_argument("--evaluator-seeds", default=None, metavar="SEEDS",
+                      help="evaluator training seeds, e.g. 0-2 or 0,1,2")
+    p.add_argument("--jobs", type=int_at_least(1), default=1, help="jobs run side by side")
+    p.add_argument("--seeds", default=None, help="replicate seeds (default: the scale's)")
+    _retrain_option(p)
+    p.add_argument("--format", default="term", choices=("term", "md", "json"),
+                   help="term | md | json (default term)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_sweep)
 
     p = sub.add_parser("show", help="print a table from its newest run (no computing)")
     p.add_argument("table")
@@ -164,6 +184,27 @@ def cmd_run(args) -> int:
             print(f"repro: {plan.spec.id}: rows failed: {', '.join(failed)}", file=sys.stderr)
             rc = max(rc, 1)
     return rc
+
+
+def cmd_sweep(args) -> int:
+    from repro.engine.sweep import parse_factors, render_sweep, sweep_table
+    from repro.engine.tables import parse_seeds
+
+    if args.budget is not None:
+        axis, points = "budget", list(parse_factors(args.budget))
+    else:
+        axis, points = "evaluator_seed", list(parse_seeds(args.evaluator_seeds))
+    record = sweep_table(args.table, axis=axis, points=points, scale=args.scale,
+                         dataset=args.dataset, jobs=args.jobs,
+                         progress=not args.quiet and sys.stderr.isatty(),
+                         seeds=parse_seeds(args.seeds) if args.seeds is not None else None,
+                         retrain=args.retrain)
+    print(f"repro: sweep record {record['path']}/sweep.json", file=sys.stderr)
+    if args.format == "json":
+        print(json.dumps(record, indent=1, sort_keys=True))
+    else:
+        sys.stdout.write(render_sweep(record, args.format))
+    return 0
 
 
 def cmd_show(args) -> int:

@@ -268,6 +268,8 @@ def column_views(spec) -> list:
     for c in spec.columns:
         g = spec.group_of(c.id)
         label = f"{g.label}: {c.label}" if g is not None else c.label
+        if getattr(c, "harness", False):  # not in the paper: say so in every format
+            label += " (harness)"
         cols.append(ColumnView(c.id, label, c.direction or "", c.unit or ""))
     return cols
 

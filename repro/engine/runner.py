@@ -32,7 +32,9 @@ def _scale(name: str, dataset: str | None):
     return resolve_scale(name, dataset)
 
 
-def _footer(plan, evaluators: dict[str, Any], run_id: str | None) -> list[str]:
+def _footer(plan, evaluators: dict[str, Any], run_id: str | None,
+            budgets: dict | None = None) -> list[str]:
+    from repro.engine.evidence import budget_text
     from repro.stats.intervals import INTERVAL_DESCRIPTIONS
 
     spec, scale = plan.spec, plan.scale
@@ -52,6 +54,15 @@ def _footer(plan, evaluators: dict[str, Any], run_id: str | None) -> list[str]:
     lines.append(f"Paper ±: {INTERVAL_DESCRIPTIONS.get(spec.interval, spec.interval)}; ours: mean "
                  f"±(paper convention) [95% percentile bootstrap over replicates, "
                  f"B={scale.bootstrap_resamples}].")
+    trained = [b for b in (budgets or {}).values() if b is not None]
+    if trained or plan.budget != 1.0:
+        seen: dict[str, str] = {}
+        for b in trained:
+            seen.setdefault(b["method"], budget_text(b))
+        factor = "" if plan.budget == 1.0 else f"epochs × {plan.budget:g} of the profile's; "
+        lines.append(f"Training budget: {factor}against the paper's schedule on this data: "
+                     + (", ".join(seen.values()) or "no trained row") + ". A claim contradicted "
+                     "below the paper's budget reads 'not reproduced at this budget'.")
     for desc in evaluators.values():
         lines.append(f"Evaluator: {desc}")
     for b in plan.bands:
@@ -129,18 +140,21 @@ def _real_rows(e: dict, evaluator_key: str, ev, clips) -> dict:
 
 def run_table(name: str, *, scale: str = "quick", dataset: str | None = None, jobs: int = 1,
               force: Any = None, progress: bool = True,
-              seeds: tuple[int, ...] | None = None, retrain: bool = False) -> tuple[Any, dict, str]:
+              seeds: tuple[int, ...] | None = None, retrain: bool = False,
+              budget: float = 1.0, evaluator_seed: int = 0) -> tuple[Any, dict, str]:
     """Run one table; returns (plan, summary, run_id).  ``seeds`` replaces the profile's
     replicate seeds (the first one is also the training seed); ``retrain`` trains one model
-    per replicate (:func:`repro.engine.tables.build_plan`)."""
+    per replicate; ``budget`` scales every method's epochs; ``evaluator_seed`` trains the
+    evaluators with another seed (:func:`repro.engine.tables.build_plan`)."""
     return run_tables([name], scale=scale, dataset=dataset, jobs=jobs, force=force,
-                      progress=progress, seeds=seeds, retrain=retrain)[0]
+                      progress=progress, seeds=seeds, retrain=retrain, budget=budget,
+                      evaluator_seed=evaluator_seed)[0]
 
 
 def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = None,
                jobs: int = 1, force: Any = None, progress: bool = True,
-               seeds: tuple[int, ...] | None = None,
-               retrain: bool = False) -> list[tuple[Any, dict, str]]:
+               seeds: tuple[int, ...] | None = None, retrain: bool = False,
+               budget: float = 1.0, evaluator_seed: int = 0) -> list[tuple[Any, dict, str]]:
     """Run several tables as one job graph; one (plan, summary, run_id) per distinct name.
 
     Every spec is resolved first (a typo stops before anything is computed); each table gets
@@ -149,12 +163,13 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
     trainings run side by side instead of one table after another)."""
     from contextlib import ExitStack
 
-    from repro.engine.tables import build_plan, collect_values, summarise
+    from repro.engine.tables import build_plan, collect_trainings, collect_values, summarise
     from repro.store.runs import RunRecorder
 
     sc = _scale(scale, dataset)
     specs = list({s.id: s for s in (_spec(n) for n in names)}.values())
-    plans = [build_plan(spec, sc, dataset, seeds, retrain) for spec in specs]
+    plans = [build_plan(spec, sc, dataset, seeds, retrain, budget, evaluator_seed)
+             for spec in specs]
     out = []
     with ExitStack() as stack:
         recs = [stack.enter_context(RunRecorder(
@@ -168,9 +183,11 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
         for p, rec, ev, (reports, counts) in zip(plans, recs, evaluators, executed):
             values = collect_values(p, reports)
             rec.add_values(values)
-            summary = summarise(p, values)
+            trainings = collect_trainings(p, reports)
+            rec.write_trainings(trainings)
+            summary = summarise(p, values, trainings)
             summary["evaluators"] = ev
-            summary["footer"] = _footer(p, ev, rec.run_id)
+            summary["footer"] = _footer(p, ev, rec.run_id, summary.get("budgets"))
             summary["counts"] = counts
             rec.write_summary(summary)
             rec.finish()
@@ -264,9 +281,11 @@ def _execute_plans(plans: list, recorders: list, *, jobs: int, force: Any,
 
 
 def latest_run(table: str, scale: str | None = None, dataset: str | None = None,
-               retrain: bool | None = None) -> Path | None:
+               retrain: bool | None = None, plain: bool = True) -> Path | None:
     """The newest FINISHED run folder of ``table`` (optionally for a scale / data set, and
-    made with or without ``--retrain``)."""
+    made with or without ``--retrain``); with ``plain`` (the default) only runs at the
+    profile's budget with the default evaluator seed (a sweep's other points are not "the"
+    run of a table)."""
     from repro.store.runs import FINISHED, read_run_json, run_dirs
 
     for d in reversed(run_dirs()):
@@ -280,7 +299,10 @@ def latest_run(table: str, scale: str | None = None, dataset: str | None = None,
             continue
         if dataset is not None and rj.get("dataset") != dataset:
             continue
-        if retrain is not None and bool((rj.get("config") or {}).get("retrain")) != retrain:
+        cfg = rj.get("config") or {}
+        if retrain is not None and bool(cfg.get("retrain")) != retrain:
+            continue
+        if plain and (float(cfg.get("budget", 1.0)) != 1.0 or int(cfg.get("evaluator_seed", 0))):
             continue
         return d
     return None

@@ -4,7 +4,9 @@ Each step reads only its job's config, seed and input objects, and writes its pa
 ``ctx.out``; everything it depends on is in its key (see :mod:`repro.engine.tables`):
 
 - ``train_method``: train one row's method on the protocol's training items (checkpoints in the
-  key's scratch folder, so a killed training resumes) and save it (config beside weights);
+  key's scratch folder, so a killed training resumes), minus the clips held out for its
+  validation curve (``config["validation"]``), and save it (config beside weights) with its
+  learning curve (``training.json``, :data:`TRAINING_SCHEMA`);
 - ``generate``: one replicate's samples for the protocol's test items (kept, so a rescore
   re-measures without regenerating);
 - ``measure``: one replicate's metric values for a generated set (evaluator features kept);
@@ -18,6 +20,10 @@ from functools import lru_cache
 
 GENERATED = "generated.npz"
 VALUES = "values.json"
+TRAINING = "training.json"
+#: ``training.json`` format: 2 added ``epochs``, ``batch_size``, ``n_train``, ``n_validation``,
+#: ``validation_fraction``, ``steps`` and per-epoch ``batches`` / ``val_*`` in ``history``
+TRAINING_SCHEMA = 2
 
 
 @lru_cache(maxsize=4)
@@ -67,8 +73,16 @@ def _write_values(ctx, values: dict) -> None:
     (ctx.out / VALUES).write_text(json.dumps({"schema": 1, "values": clean}, sort_keys=True))
 
 
+def validation_settings(cfg: dict, seed: int) -> tuple[float, int]:
+    """(fraction, seed) of a train job's validation hold-out: ``cfg["validation"]``
+    ``{"fraction": f, "seed": s}`` (absent: no hold-out; no seed: the job's)."""
+    v = cfg.get("validation") or {}
+    return float(v.get("fraction", 0.0) or 0.0), int(v.get("seed", seed))
+
+
 def train_method(ctx) -> None:
     from repro.models.base import generator_class
+    from repro.train.validation import holdout
 
     cfg = ctx.config
     ctx.seed_globals()
@@ -77,17 +91,30 @@ def train_method(ctx) -> None:
     cls = generator_class(cfg["method"])
     gen = cls(cfg["method_config"], clips.skeleton, clips.n_classes, clips.fps)
     epochs = cfg["method_config"].get("epochs")
+    fraction, val_seed = validation_settings(cfg, ctx.seed)
+    if epochs is None:  # nothing is trained (nearest_clip indexes): no curve, every item
+        fraction = 0.0
+    train_items, val_items = holdout(items, fraction, val_seed)
 
     def on_epoch(epoch, rec):
-        loss = rec.get("loss")
-        ctx.progress(epoch + 1, epochs, None if loss is None else f"loss {loss:.4g}")
+        loss, val = rec.get("loss"), rec.get("val_loss")
+        msg = None if loss is None else f"loss {loss:.4g}" + (
+            "" if val is None else f", val {val:.4g}")
+        ctx.progress(epoch + 1, epochs, msg)
 
-    result = gen.fit(items, seed=ctx.seed, ckpt_dir=ctx.scratch, on_epoch=on_epoch)
+    kw = {} if val_items is None else {"val_items": val_items}
+    result = gen.fit(train_items, seed=ctx.seed, ckpt_dir=ctx.scratch, on_epoch=on_epoch, **kw)
     gen.save(ctx.out)
     history = getattr(result, "history", None) or []
-    (ctx.out / "training.json").write_text(json.dumps(
-        {"schema": 1, "history": history, "resumed_from": getattr(result, "resumed_from", None),
-         "seconds": getattr(result, "seconds", None)}, sort_keys=True))
+    (ctx.out / TRAINING).write_text(json.dumps(
+        {"schema": TRAINING_SCHEMA, "history": history,
+         "resumed_from": getattr(result, "resumed_from", None),
+         "seconds": getattr(result, "seconds", None),
+         "epochs": None if epochs is None else int(epochs),
+         "batch_size": cfg["method_config"].get("batch_size"),
+         "n_train": len(train_items), "n_validation": 0 if val_items is None else len(val_items),
+         "validation_fraction": fraction,
+         "steps": int(sum(int(h.get("batches", 0)) for h in history))}, sort_keys=True))
 
 
 def _replicate_inputs(ctx):
@@ -143,7 +170,9 @@ def generate(ctx) -> None:
 def measure(ctx) -> None:
     cfg, proto, clips, items = _replicate_inputs(ctx)
     generated = proto.load_generated(ctx.inputs[0].path / GENERATED)
-    extra = {"clipset": clips} if getattr(proto, "generation_uses_evaluator", False) else {}
+    uses = getattr(proto, "generation_uses_evaluator", False) or \
+        getattr(proto, "measure_uses_clipset", False)  # e.g. the harness columns' training bank
+    extra = {"clipset": clips} if uses else {}
     values = proto.measure(generated, items, evaluator_for(cfg), seed=ctx.seed, **extra)
     _write_values(ctx, values)
 
@@ -158,3 +187,14 @@ def measure_real(ctx) -> None:
 def read_values(obj) -> dict[str, float | None]:
     """The metric values a measure/measure_real object holds."""
     return json.loads(obj.read_text(VALUES))["values"]
+
+
+def read_training(obj) -> dict | None:
+    """The parsed ``training.json`` of a train job's store object (its learning curve and
+    sizes, schema :data:`TRAINING_SCHEMA`; an older object may hold schema 1: ``history``,
+    ``resumed_from``, ``seconds`` only), or None when the object has none."""
+    try:
+        text = obj.read_text(TRAINING)
+    except (FileNotFoundError, KeyError, OSError):
+        return None
+    return json.loads(text)

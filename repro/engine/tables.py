@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+import json
 from functools import partial
 from typing import Any
 
@@ -99,6 +100,8 @@ class TablePlan:
     bands: list[Band]
     rows: list[RowPlan]
     retrain: bool = False  # one training per replicate (build_plan)
+    budget: float = 1.0    # epochs × this factor (repro sweep --budget; 1 = the profile's)
+    evaluator_seed: int = 0  # the evaluators' training seed (repro sweep --evaluator-seeds)
 
     def jobs(self) -> list[Job]:
         out: list[Job] = []
@@ -111,7 +114,8 @@ class TablePlan:
     def config(self) -> dict:
         """The resolved configuration recorded in run.json."""
         return {"scale": self.scale.to_dict(), "dataset": self.dataset, "seeds": list(self.seeds),
-                "retrain": self.retrain,
+                "retrain": self.retrain, "budget": self.budget,
+                "evaluator_seed": self.evaluator_seed,
                 "data_fingerprint": self.data_fingerprint,
                 "bands": [{"protocol": b.protocol, "params": b.params, "columns": b.columns,
                            "implemented": b.implemented, "evaluator": b.evaluator,
@@ -190,13 +194,17 @@ def parse_seeds(text: str) -> tuple[int, ...]:
 
 
 def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] | None = None,
-               retrain: bool = False) -> TablePlan:
+               retrain: bool = False, budget: float = 1.0, evaluator_seed: int = 0) -> TablePlan:
     """Everything a run of ``spec`` at ``scale`` would do (no training; the data set is only
     opened, memory-mapped, for the fingerprint of the evaluator's training split).
 
     A replicate is a sampling pass of one trained model per row; with ``retrain`` each
     replicate also trains its own model (training seed = the replicate's seed), so the
-    intervals include training-seed variance, at R times the training cost."""
+    intervals include training-seed variance, at R times the training cost.  ``budget``
+    multiplies every method's epoch counts (:func:`repro.engine.evidence.scale_epochs`; 1 keeps
+    the profile's, so its jobs are the plain run's); ``evaluator_seed`` trains the evaluators
+    with another seed (evaluator sensitivity, :mod:`repro.engine.sweep`)."""
+    from repro.engine.evidence import scale_epochs
     from repro.eval.protocols import get_protocol, is_implemented
     from repro.eval.provider import evaluator_key
     from repro.eval.settings import resolve_settings
@@ -218,7 +226,7 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
         b.version = proto.version
         b.module = type(proto).__module__
         b.evaluator = {"dataset": dataset, "kind": proto.evaluator_kind, "scale": scale.name,
-                       "seed": 0}
+                       "seed": int(evaluator_seed)}
         heading = getattr(proto, "evaluator_heading", None)
         if heading is not None:  # a protocol that changes headings asks for a heading-free one
             b.evaluator["heading"] = heading
@@ -231,8 +239,12 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
             ev_settings = settings if heading is None else resolve_settings(
                 scale.name, {"heading": heading})
             b.evaluator_key = evaluator_key(proto.evaluator_kind, ev_settings,
-                                            evaluator_clipset(proto, clips).fingerprint, 0)
-    plan = TablePlan(spec, scale, dataset, fp, missing, seeds, bands, [], retrain=bool(retrain))
+                                            evaluator_clipset(proto, clips).fingerprint,
+                                            int(evaluator_seed))
+    plan = TablePlan(spec, scale, dataset, fp, missing, seeds, bands, [], retrain=bool(retrain),
+                     budget=float(budget), evaluator_seed=int(evaluator_seed))
+    # held-out share of the training actions for the learning curve (repro.train.validation)
+    validation = {"fraction": float(getattr(scale, "validation_fraction", 0.0) or 0.0), "seed": 0}
     job = partial(Job, threads=scale.threads)  # every table job computes with the profile's count
     for row in spec.rows:
         rp = RowPlan(row.id, row.method)
@@ -249,6 +261,7 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
             if mcfg is None:
                 rp.status, rp.reason = NOT_IMPLEMENTED, why
                 continue
+            mcfg = scale_epochs(mcfg, budget)
             cls = generator_class(row.method)
             method_module = cls.__module__
             # a method that trains as another (NEURAL MARIONETTE = MarioNet's weights plus
@@ -275,7 +288,7 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
                 # serves every table whose protocols make items the same way
                 return job("train", f"{STEPS}:train_method",
                            {"dataset": dataset, "items": b.item_source, "method": train_method,
-                            "method_config": train_cfg},
+                            "method_config": train_cfg, "validation": validation},
                            seed=seed, fingerprints=fps,
                            label=f"{train_method}/train"
                            + ("" if seed == seeds[0] else f"/s{seed}"),
@@ -347,6 +360,51 @@ def collect_values(plan: TablePlan, reports: dict) -> list[dict]:
     return out
 
 
+def collect_trainings(plan: TablePlan, reports: dict) -> list[dict]:
+    """Every training of the run, once per (row, training job): the row, the method trained,
+    its seed, job key, the resolved method config and the training record the job wrote
+    (``training.json``: per-epoch loss terms, validation error, steps; None if absent)."""
+    out = []
+    for rp in plan.rows:
+        report = reports.get(rp.row_id)
+        if report is None:
+            continue
+        seen = set()
+        for jobs in rp.train.values():
+            for job in jobs:
+                if job.key() in seen:
+                    continue
+                seen.add(job.key())
+                try:
+                    rec = json.loads(report.object(job).read_text("training.json"))
+                except Exception:  # a training without a record (older store object)
+                    rec = None
+                out.append({"row": rp.row_id, "method": job.config["method"], "seed": job.seed,
+                            "job": job.key(), "method_config": job.config["method_config"],
+                            "training": rec})
+    return out
+
+
+def row_budgets(plan: TablePlan, trainings: list[dict] | None) -> dict[str, dict | None]:
+    """Each trained row's budget against the paper's (:func:`repro.engine.evidence.training_budget`),
+    from its first training's record, or from the planned config when there is no record."""
+    from repro.engine.evidence import training_budget
+
+    recs = {}
+    for t in trainings or []:
+        recs.setdefault(t["row"], t)
+    out: dict[str, dict | None] = {}
+    for rp in plan.rows:
+        jobs = [j for js in rp.train.values() for j in js]
+        if not jobs:
+            continue
+        t = recs.get(rp.row_id)
+        cfg = jobs[0].config
+        out[rp.row_id] = training_budget(cfg["method"], cfg["method_config"],
+                                         None if t is None else t.get("training"))
+    return out
+
+
 def _values_by_cell(values: list[dict]) -> dict[tuple[str, str], list[float]]:
     cells: dict[tuple[str, str], list[float]] = {}
     for v in sorted(values, key=lambda d: (d["row"], d["column"], d["replicate"])):
@@ -355,8 +413,10 @@ def _values_by_cell(values: list[dict]) -> dict[tuple[str, str], list[float]]:
     return cells
 
 
-def summarise(plan: TablePlan, values: list[dict]) -> dict:
-    """summary.json: per-cell statistics and per-claim verdicts, from raw values only."""
+def summarise(plan: TablePlan, values: list[dict], trainings: list[dict] | None = None) -> dict:
+    """summary.json: per-cell statistics and per-claim verdicts from the raw values, each
+    verdict with the evidence that decided it (:mod:`repro.engine.evidence`; ``trainings``
+    from :func:`collect_trainings` give the budgets)."""
     from repro.seeding import derive_seed
     from repro.stats.summary import summarize
 
@@ -367,14 +427,36 @@ def summarise(plan: TablePlan, values: list[dict]) -> dict:
         s = summarize(vals, spec.interval_for(row_id), n_boot=plan.scale.bootstrap_resamples,
                       seed=derive_seed(0, spec.id, row_id, col))
         out_cells.setdefault(row_id, {})[col] = s.to_dict()
-    claims = [_claim(spec, cl, cells, values) for cl in spec.claims]
+    budgets = row_budgets(plan, trainings)
+    claims = [with_evidence(plan, cl, _claim(spec, cl, cells, values), budgets)
+              for cl in spec.claims]
     out = {"schema": SUMMARY_SCHEMA, "table": spec.id, "cells": out_cells, "claims": claims,
+           "budgets": budgets, "budget_factor": plan.budget,
            "rows": {rp.row_id: {"status": rp.status, "reason": rp.reason} for rp in plan.rows},
            "unbuilt_columns": unbuilt_columns(plan)}
     from repro.engine.figures import axis_summary, is_figure
 
     if is_figure(spec):  # cells are per x ("overall.acc@3"); say which x the run has
         out["x"] = axis_summary(spec, cells)
+    return out
+
+
+def with_evidence(plan: TablePlan, cl, claim: dict, budgets: dict) -> dict:
+    """``claim`` with its evidence (variance, budgets of the rows involved, evaluators of its
+    columns) and the verdict that evidence allows; the sampler's own verdict is kept as
+    ``posterior_verdict``."""
+    from repro.engine.evidence import claim_evidence, evaluator_text, qualified_verdict
+
+    evs = []
+    for b in plan.bands:
+        if b.implemented and set(b.columns) & set(cl.column):
+            t = evaluator_text(b.evaluator, b.evaluator_key)
+            if t and t not in evs:
+                evs.append(t)
+    ev = claim_evidence(rows=list(cl.involved_rows()), budgets=budgets, retrain=plan.retrain,
+                        replicates=len(plan.seeds), evaluators=evs)
+    out = {**claim, "evidence": ev, "posterior_verdict": claim["verdict"]}
+    out["verdict"] = qualified_verdict(claim["verdict"], ev)
     return out
 
 
@@ -445,14 +527,20 @@ def _pairs_on(spec, cl, col: str, key: str, cells, seed: int = 0):
         if va is None or vb is None:
             return f"no reference row for closer-to-real column {col!r}"
         delta = float(cl.delta or 0.0)
+        tag = (lambda r: None if r is None else f"{key}: {r}")  # say which column it is about
         if within:
             hi = claim_probability(va, vb, "higher", delta, seed=seed)
             lo = claim_probability(va, vb, "lower", delta, seed=seed)
+            if hi.decided_by == "values":  # no spread: within iff neither side is ahead by δ
+                holds = hi.verdict != "supported" and lo.verdict != "supported"
+                pairs.append((math.nan, "supported" if holds else "contradicted",
+                              tag(hi.reason)))
+                continue
             p = 1.0 - hi.probability - lo.probability
-            pairs.append((p, vd(p), hi.reason or lo.reason))
+            pairs.append((p, vd(p), tag(hi.reason or lo.reason)))
         else:
             res = claim_probability(va, vb, d, delta if cl.kind == "gap" else 0.0, seed=seed)
-            pairs.append((res.probability, res.verdict, res.reason))
+            pairs.append((res.probability, res.verdict, tag(res.reason)))
     return pairs
 
 
@@ -519,6 +607,10 @@ def make_view(spec, plan_rows: dict[str, dict], summary: dict | None, footer: li
         for c in spec.columns:
             rep = row.reported.get(c.id)
             printed = rep.printed if rep is not None else None
+            if getattr(c, "harness", False):
+                printed = "not in paper"
+            elif rep is not None and getattr(rep, "certain", True) is False:
+                printed = f"{printed}?"  # the spec marks the extraction uncertain (its note says why)
             got = cells.get(row.id, {}).get(c.id)
             if got is not None:
                 ci = got.get("bootstrap_percentile")
@@ -534,6 +626,11 @@ def make_view(spec, plan_rows: dict[str, dict], summary: dict | None, footer: li
                     cst = "not measured" if summary else NOT_RUN
                 rv.cells[c.id] = CellView(printed, status=cst)
         rows.append(rv)
+    uncertain = [f"{row.id}/{cid}" for row in spec.rows for cid, rep in row.reported.items()
+                 if getattr(rep, "certain", True) is False]
+    if uncertain:
+        footer = list(footer) + [f"Paper cells marked '?' ({', '.join(uncertain)}) are uncertain "
+                                 "in the PDF extraction (the spec's note says why); never used."]
     return TableView(spec.id, spec.title, _paper_title(spec), cols, rows,
                      _claim_views(spec, summary), footer, _standin(dataset), spec.interval)
 
@@ -546,7 +643,8 @@ def _claim_views(spec, summary: dict | None) -> list[ClaimView]:
         claims.append(ClaimView(cl.id, _claim_text(spec, cl), cl.source,
                                 None if got is None else got.get("probability"),
                                 "not evaluated" if got is None else got["verdict"],
-                                None if got is None else got.get("reason")))
+                                None if got is None else got.get("reason"),
+                                None if got is None else (got.get("evidence") or {}).get("text")))
     return claims
 
 

@@ -275,17 +275,22 @@ class A2M(Generator):
         return {k: (v[idx][:, :T] if k in ("params", "joints") else v[idx]) for k, v in data.items()}
 
     def fit(self, train_items: ActionItems, *, seed: int, ckpt_dir: str | Path | None = None,
-            on_epoch: Callable[[int, dict[str, float]], None] | None = None):
+            on_epoch: Callable[[int, dict[str, float]], None] | None = None,
+            val_items: ActionItems | None = None):
         """Adam (lr 2e-4, weight decay 1e-5), batch 128, through the one training loop; weights
-        initialised from ``seed``."""
+        initialised from ``seed``.  ``val_items``: the same loss terms on held-out items enter
+        each epoch's history (``val_*``)."""
         check_items(self, train_items)
+        if val_items is not None:
+            check_items(self, val_items)
         cfg = self.config
         self._build(derive_seed(seed, self.method_id, "init"))
         data = self._tensors(train_items)
         opt = torch.optim.Adam(self.net.parameters(), lr=cfg.lr, betas=(0.9, 0.999),
                                weight_decay=cfg.weight_decay)
+        val_data = None if val_items is None else self._tensors(val_items)
         return self._fit_batches(train_items, data, opt, seed=seed, ckpt_dir=ckpt_dir,
-                                 on_epoch=on_epoch)
+                                 on_epoch=on_epoch, val_items=val_items, val_data=val_data)
 
     # -- inference -----------------------------------------------------------------------------
     @torch.no_grad()

@@ -184,15 +184,21 @@ class ACTOR(Generator):
         return {k: (v[idx][:, :T] if k in ("poses", "joints") else v[idx]) for k, v in data.items()}
 
     def fit(self, train_items: ActionItems, *, seed: int, ckpt_dir: str | Path | None = None,
-            on_epoch: Callable[[int, dict[str, float]], None] | None = None):
-        """AdamW (lr 1e-4), batch 20, through the one training loop; weights from ``seed``."""
+            on_epoch: Callable[[int, dict[str, float]], None] | None = None,
+            val_items: ActionItems | None = None):
+        """AdamW (lr 1e-4), batch 20, through the one training loop; weights from ``seed``.
+        ``val_items``: the same loss terms on held-out items enter each epoch's history
+        (``val_*``)."""
         check_items(self, train_items)
+        if val_items is not None:
+            check_items(self, val_items)
         cfg = self.config
         self._build(derive_seed(seed, self.method_id, "init"))
         data = self._tensors(train_items)
         opt = torch.optim.AdamW(self.net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+        val_data = None if val_items is None else self._tensors(val_items)
         return self._fit_batches(train_items, data, opt, seed=seed, ckpt_dir=ckpt_dir,
-                                 on_epoch=on_epoch)
+                                 on_epoch=on_epoch, val_items=val_items, val_data=val_data)
 
     # -- inference -----------------------------------------------------------------------------
     @torch.no_grad()

@@ -10,9 +10,11 @@ and four operations:
 
 - ``Generator(config, skeleton, n_classes, fps)``: ``config`` is a ``Config``, a mapping of
   overrides or ``None`` (the paper defaults); a bad override is a :class:`~repro.errors.ConfigError`;
-- ``fit(train_items, *, seed, ckpt_dir=None, on_epoch=None) -> TrainResult``: trains through
-  :func:`repro.train.train` (seeded epochs, atomic checkpoints, exact resume; use
-  :meth:`Generator.train_config` as the loop's resume guard);
+- ``fit(train_items, *, seed, ckpt_dir=None, on_epoch=None, val_items=None) -> TrainResult``:
+  trains through :func:`repro.train.train` (seeded epochs, atomic checkpoints, exact resume;
+  use :meth:`Generator.train_config` as the loop's resume guard); with ``val_items`` (held out
+  by :func:`repro.train.validation.holdout`) each epoch's history also holds the training loss
+  terms measured on them (``val_*``), which never change the weights;
 - ``sample(cond_items, *, seed, use_mean=False) -> GeneratedItems``: one generated action per
   condition item, **in the original world frame** (un-normalised), same order;
 - ``save(dir)`` / ``Generator.load(dir)``: ``config.json`` (method, config, skeleton, classes,
@@ -145,8 +147,12 @@ class Generator(abc.ABC):
 
     @abc.abstractmethod
     def fit(self, train_items, *, seed: int, ckpt_dir: str | Path | None = None,
-            on_epoch: Callable[[int, dict[str, float]], None] | None = None):
-        """Train on ``train_items`` (an ActionItems); returns :class:`repro.train.loop.TrainResult`."""
+            on_epoch: Callable[[int, dict[str, float]], None] | None = None,
+            val_items=None):
+        """Train on ``train_items`` (an ActionItems); returns :class:`repro.train.loop.TrainResult`.
+        ``val_items`` (an ActionItems or None): held-out items whose loss terms, computed as in
+        training, enter each epoch's history as ``val_*`` (a curve only: nothing is selected
+        with it, and the weights are the same with or without it)."""
 
     @abc.abstractmethod
     def sample(self, cond_items, *, seed: int, use_mean: bool = False):
@@ -169,11 +175,13 @@ class Generator(abc.ABC):
         self.net.eval()
 
     def _fit_batches(self, train_items, data: dict, optimizer, *, seed: int, ckpt_dir,
-                     on_epoch, **train_kwargs):
+                     on_epoch, val_items=None, val_data: dict | None = None, **train_kwargs):
         """The tail every item-batched ``fit`` shares: shuffled batches of ``config.batch_size``
         items (``self._crop(data, idx)`` each), ``self.training_step`` through the one
         training loop (:func:`repro.train.loop.train`, resumable from ``ckpt_dir``), then
-        eval mode.  ``train_kwargs`` go to the loop (e.g. ``grad_clip``)."""
+        eval mode.  ``train_kwargs`` go to the loop (e.g. ``grad_clip``).  With ``val_items``
+        and their tensors ``val_data`` (made like ``data``), each epoch's record also holds
+        ``self.training_step`` on them (:meth:`_validator`)."""
         from repro.train.loop import train
 
         n, batch_size = len(train_items), self.config.batch_size
@@ -182,12 +190,35 @@ class Generator(abc.ABC):
             for idx in epoch_batches(n, batch_size, gen):
                 yield self._crop(data, idx)
 
+        validate = None
+        if val_items is not None:
+            if val_data is None:
+                raise ValueError("val_items need their tensors (val_data)")
+            validate = self._validator(val_data, len(val_items), batch_size)
         result = train(self.net, optimizer, batches=batches, step=self.training_step,
                        epochs=self.config.epochs, seed=seed,
-                       config=self.train_config(train_items, seed), ckpt_dir=ckpt_dir,
-                       on_epoch=on_epoch, **train_kwargs)
+                       config=self.train_config(train_items, seed, val_items),
+                       ckpt_dir=ckpt_dir, on_epoch=on_epoch, validate=validate, **train_kwargs)
         self.net.eval()
         return result
+
+    def _validator(self, val_data: dict, n_val: int, batch_size: int):
+        """The training loop's ``validate``: ``self.training_step`` on the validation items in
+        order, in batches of ``batch_size``, each scalar averaged over items (so ``val_loss``
+        is the training loss on held-out items; the loop runs it in eval mode, no dropout)."""
+        import torch
+
+        def validate(model, epoch):
+            sums: dict[str, float] = {}
+            for s in range(0, n_val, batch_size):
+                idx = torch.arange(s, min(n_val, s + batch_size))
+                out = self.training_step(model, self._crop(val_data, idx), epoch)
+                w = idx.numel()
+                for k, v in out.items():
+                    sums[k] = sums.get(k, 0.0) + w * float(v.detach() if hasattr(v, "detach") else v)
+            return {k: v / max(n_val, 1) for k, v in sums.items()}
+
+        return validate
 
     def describe(self) -> dict:
         """Everything that defines this generator before training (enters content keys)."""
@@ -195,10 +226,14 @@ class Generator(abc.ABC):
                 "skeleton": self.skeleton.fingerprint(), "n_classes": self.n_classes,
                 "fps": self.fps}
 
-    def train_config(self, train_items, seed: int) -> dict:
+    def train_config(self, train_items, seed: int, val_items=None) -> dict:
         """The resume guard for :func:`repro.train.train`: a checkpoint is resumed only when
-        the generator, the training items and the seed are all the same."""
-        return {"generator": self.describe(), "items": train_items.key(), "seed": int(seed)}
+        the generator, the training items and the seed are all the same (and the validation
+        items, when there are any: the history in the checkpoint holds their curve)."""
+        cfg = {"generator": self.describe(), "items": train_items.key(), "seed": int(seed)}
+        if val_items is not None:
+            cfg["validation"] = val_items.key()
+        return cfg
 
     def key(self) -> str:
         return content_key(self.describe())

@@ -294,12 +294,17 @@ class MANN(Generator):
 
     # -- training ------------------------------------------------------------------------------
     def fit(self, train_items: ActionItems, *, seed: int, ckpt_dir: str | Path | None = None,
-            on_epoch: Callable[[int, dict[str, float]], None] | None = None):
+            on_epoch: Callable[[int, dict[str, float]], None] | None = None,
+            val_items: ActionItems | None = None):
         """Teacher-forced frame pairs, normalised; AdamWR (module docstring) through the one
-        training loop; weights initialised from ``seed``."""
+        training loop; weights initialised from ``seed``.  With ``val_items`` each epoch also
+        records ``val_loss``: the same normalised MSE (training statistics) over every
+        teacher-forced frame pair of the held-out items."""
         from repro.train.loop import train
 
         check_items(self, train_items)
+        if val_items is not None:
+            check_items(self, val_items)
         cfg = self.config
         self._build(derive_seed(seed, self.method_id, "init"))
         X, Y = self.features.training_pairs(train_items)
@@ -330,9 +335,23 @@ class MANN(Generator):
             loss = F.mse_loss(model(xb), yb)
             return {"loss": loss, "lr": loss.new_tensor(cfg.lr * eta)}
 
+        validate = None
+        if val_items is not None:
+            Xv, Yv = self.features.training_pairs(val_items)
+            with torch.no_grad():
+                Xv, Yv = net.normalise_x(Xv), (Yv - net.y_mean) / net.y_std
+            m = Xv.shape[0]
+
+            def validate(model, epoch):
+                total = 0.0
+                for s in range(0, m, cfg.batch_size):
+                    xb, yb = Xv[s:s + cfg.batch_size], Yv[s:s + cfg.batch_size]
+                    total += float(F.mse_loss(model(xb), yb)) * xb.shape[0]
+                return {"loss": total / max(m, 1)}
+
         result = train(net, opt, batches=batches, step=step, epochs=cfg.epochs, seed=seed,
-                       config=self.train_config(train_items, seed), ckpt_dir=ckpt_dir,
-                       on_epoch=on_epoch)
+                       config=self.train_config(train_items, seed, val_items),
+                       ckpt_dir=ckpt_dir, on_epoch=on_epoch, validate=validate)
         net.eval()
         return result
 

@@ -445,10 +445,15 @@ class MarioNet(Generator):
                 "lambda1": f(lam1), "lambda2": f(lam2)}
 
     def fit(self, train_items: ActionItems, *, seed: int, ckpt_dir: str | Path | None = None,
-            on_epoch: Callable[[int, dict[str, float]], None] | None = None):
+            on_epoch: Callable[[int, dict[str, float]], None] | None = None,
+            val_items: ActionItems | None = None):
         """Adam (lr 1e-4), batch 30, 1,000 epochs at paper scale (supp. Sec. 3), through the one
-        training loop; weights are initialised from ``seed``."""
+        training loop; weights are initialised from ``seed``.  With ``val_items`` each epoch
+        also records Eq. 2's terms on them (``val_loss``, ``val_rec1``, ...; the scheduled
+        sampling gate decided on the validation batch's own first-pass error)."""
         self._check_items(train_items)
+        if val_items is not None:
+            self._check_items(val_items)
         cfg = self.config
         self._build(derive_seed(seed, self.method_id, "init"))
         data = self._tensors(train_items, with_targets=True)
@@ -457,8 +462,10 @@ class MarioNet(Generator):
             self.net.pose_mean.copy_(mean)
             self.net.pose_std.copy_(std)
         opt = torch.optim.Adam(self.net.parameters(), lr=cfg.lr)
+        val_data = None if val_items is None else self._tensors(val_items, with_targets=True)
         return self._fit_batches(train_items, data, opt, seed=seed, ckpt_dir=ckpt_dir,
-                                 on_epoch=on_epoch, grad_clip=cfg.grad_clip)
+                                 on_epoch=on_epoch, val_items=val_items, val_data=val_data,
+                                 grad_clip=cfg.grad_clip)
 
     # -- inference -------------------------------------------------------------------------------
     def _finish(self, items: ActionItems, poses: torch.Tensor) -> GeneratedItems:

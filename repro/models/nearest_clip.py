@@ -119,8 +119,10 @@ class NearestClip(Generator):
             raise DataError("nearest_clip: no items")
 
     def fit(self, train_items: ActionItems, *, seed: int, ckpt_dir: str | Path | None = None,
-            on_epoch: Callable[[int, dict[str, float]], None] | None = None):
-        """Index ``train_items`` (no training; ``seed``, ``ckpt_dir``, ``on_epoch`` unused)."""
+            on_epoch: Callable[[int, dict[str, float]], None] | None = None,
+            val_items: ActionItems | None = None):
+        """Index ``train_items`` (no training; ``seed``, ``ckpt_dir``, ``on_epoch`` and
+        ``val_items`` unused: there is no curve to draw)."""
         from repro.train.loop import TrainResult
 
         t0 = time.perf_counter()

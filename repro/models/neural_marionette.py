@@ -168,12 +168,14 @@ class NeuralMarionette(MarioNet):
         return gen
 
     def fit(self, train_items: ActionItems, *, seed: int, ckpt_dir: str | Path | None = None,
-            on_epoch: Callable[[int, dict[str, float]], None] | None = None):
+            on_epoch: Callable[[int, dict[str, float]], None] | None = None,
+            val_items: ActionItems | None = None):
         """Train **as MarioNet** (same seed derivation, resume guard and checkpoints as
-        ``MarioNet(self.training_config()).fit``, hence the same weights), copy the weights,
-        and set the shadow bank from ``train_items``."""
+        ``MarioNet(self.training_config()).fit``, hence the same weights; ``val_items`` passed
+        on), copy the weights, and set the shadow bank from ``train_items``."""
         base = MarioNet(self.training_config(), self.skeleton, self.n_classes, self.fps)
-        result = base.fit(train_items, seed=seed, ckpt_dir=ckpt_dir, on_epoch=on_epoch)
+        result = base.fit(train_items, seed=seed, ckpt_dir=ckpt_dir, on_epoch=on_epoch,
+                          val_items=val_items)
         self.net.load_state_dict(base.network.state_dict())
         self.net.eval()
         self.set_shadow_bank(train_items)

@@ -65,9 +65,12 @@ def _title(view: TableView) -> str:
 
 
 def _claim_line(cl) -> str:
+    """A claim's verdict line; a claim that was evaluated carries its evidence (variance,
+    budget against the paper's, evaluator: :mod:`repro.engine.evidence`) after "decided by"."""
     p = "" if cl.probability is None else f" (P = {cl.probability:.3f})"
     r = f" — {cl.reason}" if cl.reason else ""
-    return f"{cl.verdict.upper()}{p}: {cl.text}{r}"
+    ev = f" [decided by: {cl.evidence}]" if getattr(cl, "evidence", None) else ""
+    return f"{cl.verdict.upper()}{p}: {cl.text}{r}{ev}"
 
 
 def _term_tail(console, view) -> None:

@@ -65,6 +65,7 @@ class ClaimView:
     probability: float | None = None
     verdict: str = "not evaluated"
     reason: str | None = None
+    evidence: str | None = None  # what decided the verdict (repro.engine.evidence)
 
 
 @dataclass

@@ -47,9 +47,12 @@ def read_toml(path: Path) -> dict[str, Any]:
     except OSError as e:
         raise SpecError(f"cannot read: {e.strerror}", path) from None
     try:
-        return tomllib.loads(data.decode("utf-8"))
+        parsed = tomllib.loads(data.decode("utf-8"))
     except UnicodeDecodeError as e:
         raise SpecError(f"not UTF-8 text (byte {e.start})", path) from None
+    except RecursionError:  # tomllib parses nested arrays/tables recursively
+        raise SpecError(f"nested deeper than the parser can read (no spec nests more than "
+                        f"{MAX_DEPTH} levels)", path) from None
     except tomllib.TOMLDecodeError as e:
         msg = str(e)
         m = _TOML_LINE.search(msg)
@@ -58,6 +61,29 @@ def read_toml(path: Path) -> dict[str, Any]:
             raise SpecError(f"line {m.group(1)}, column {m.group(2)}: TOML syntax error: {problem}",
                             path) from None
         raise SpecError(f"TOML syntax error: {msg}", path) from None
+    if _depth(parsed) > MAX_DEPTH:
+        raise SpecError(f"nested more than {MAX_DEPTH} levels deep (no spec needs that)", path)
+    return parsed
+
+
+#: deepest nesting of tables and arrays a spec or scale file may have (real ones use about 5);
+#: deeper input is refused before pydantic or the key recipe recurse into it
+MAX_DEPTH = 32
+
+
+def _depth(value, limit: int = MAX_DEPTH + 1) -> int:
+    """Nesting depth of dicts and lists in ``value``, counted iteratively and up to ``limit``."""
+    deepest, stack = 0, [(value, 0)]
+    while stack:
+        v, d = stack.pop()
+        if isinstance(v, dict):
+            v = list(v.values())
+        if isinstance(v, list):
+            d += 1
+            deepest = max(deepest, d)
+            if d <= limit:
+                stack.extend((x, d) for x in v)
+    return deepest
 
 
 # -- turning pydantic errors into located, readable problems ------------------------------------

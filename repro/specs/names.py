@@ -169,6 +169,23 @@ METRICS: Mapping[str, MetricInfo] = _freeze([
                "ODMO §4.3.1: relative APD decrease when real sequences are split by latent modes"),
     MetricInfo("dist_e", "dist_e", "", "lower",
                "ODMO §4.4: squared distance between target and generated end location"),
+    # harness columns, in none of the papers (repro.eval.memorisation)
+    MetricInfo("nn_train_feat", "NN-train (features)", "", "closer_to_real",
+               "harness: mean evaluator-feature distance of a sample to its nearest training "
+               "action (a copier scores ~0)"),
+    MetricInfo("nn_train_joint", "NN-train (joints)", "m", "closer_to_real",
+               "harness: mean RMS per-joint distance (normalised frame) of a sample to its "
+               "nearest training action (a copier scores 0)"),
+    MetricInfo("precision", "Precision", "fraction", "higher",
+               "harness: share of samples inside the real features' k-NN balls "
+               "(Kynkäänniemi et al. 2019)"),
+    MetricInfo("recall", "Recall", "fraction", "higher",
+               "harness: share of real features inside the samples' k-NN balls "
+               "(Kynkäänniemi et al. 2019)"),
+    MetricInfo("density", "Density", "", "higher",
+               "harness: mean count of real k-NN balls holding a sample, over k (Naeem et al. 2020)"),
+    MetricInfo("coverage", "Coverage", "fraction", "higher",
+               "harness: share of real features whose ball holds a sample (Naeem et al. 2020)"),
 ])
 
 PROTOCOLS: Mapping[str, str] = MappingProxyType({

@@ -10,7 +10,9 @@ A profile holds a default data set (the spec's ``standin_dataset`` when absent; 
 overrides both), the replicate count and seed base, bootstrap resamples, per-protocol settings
 (sample counts; a protocol table may override ``replicates``), the CPU ``threads`` every job
 computes with (fixed, so that a job's bytes do not depend on ``--jobs`` or on the machine's core
-count: the count changes float reductions, hence trained weights), evaluator settings (validated by
+count: the count changes float reductions, hence trained weights), the ``validation_fraction``
+of the training clips held out to draw each trained model's validation curve
+(:mod:`repro.train.validation`), evaluator settings (validated by
 :mod:`repro.eval.settings`) and one free table per method (``[quick.methods.marionet]``) whose
 keys the method modules validate themselves.
 
@@ -55,6 +57,10 @@ class ScaleProfile(BaseModel):
     threads: int = Field(1, ge=1, le=256, description=(
         "torch/BLAS CPU threads each job of a table computes with; part of every job key, "
         "because float reductions (hence trained weights) depend on the count"))
+    validation_fraction: float = Field(0.0, ge=0.0, lt=0.5, description=(
+        "share of each class's training clips held out (by clip, seeded) to draw every trained "
+        "model's validation curve; never used to select anything; 0 = train on every training "
+        "clip, as the papers do (repro/train/validation.py)"))
     protocols: dict[str, dict[str, Value]] = Field(default_factory=dict)
     evaluator: dict[str, Value] = Field(default_factory=dict)
     methods: dict[str, dict[str, Value]] = Field(default_factory=dict)
@@ -107,6 +113,8 @@ class ResolvedScale:
     threads: int
     source: str
     _payload: bytes  # canonical JSON of protocols / evaluator / methods
+    #: share of each class's training clips held out for the validation curve (0: none)
+    validation_fraction: float = 0.0
 
     # -- the free tables, as fresh plain dicts ---------------------------------------------
 
@@ -164,6 +172,7 @@ class ResolvedScale:
             "name": self.name, "version": self.version, "dataset": self.dataset,
             "replicates": self.replicates, "seed_base": self.seed_base,
             "bootstrap_resamples": self.bootstrap_resamples, "threads": self.threads,
+            "validation_fraction": self.validation_fraction,
             **json.loads(self._payload),
         }
 
@@ -206,7 +215,7 @@ def resolve_scale(name: str, dataset: str | None = None, *, path: str | Path | N
         name=name, version=sf.version, description=prof.description,
         dataset=dataset or prof.dataset, replicates=prof.replicates, seed_base=prof.seed_base,
         bootstrap_resamples=prof.bootstrap_resamples, threads=prof.threads, source=str(path),
-        _payload=payload,
+        _payload=payload, validation_fraction=float(prof.validation_fraction),
     )
 
 

@@ -141,6 +141,8 @@ class Column(_Strict):
     unit: str | None = Field(None, description="default: the metric's unit")
     reference: str | None = Field(None, description="closer_to_real columns: the row that is 'real'"
                                   " (default: the only row whose method is 'real')")
+    harness: bool = Field(False, description="a column the harness adds, not in the paper "
+                          "(no reported values; shown marked 'harness')")
     note: str | None = None
 
     @model_validator(mode="after")
@@ -489,7 +491,8 @@ def cross_check(spec: TableSpec) -> list[tuple[str, str]]:
             elif c.reference not in row_ids:
                 out.append((f"{loc}.reference", f"unknown row {c.reference!r}"
                                                 f"{names.suggest(c.reference, row_ids)}"))
-        elif c.direction == "closer_to_real" and len(real_rows) != 1:
+        elif c.direction == "closer_to_real" and len(real_rows) != 1 and not c.harness:
+            # (a harness column carries no claim, so it needs no reference row)
             out.append((loc, "a closer_to_real column needs a reference row: set 'reference' "
                              f"(rows with method 'real': {', '.join(real_rows) or 'none'})"))
     for i, g in enumerate(spec.groups):
@@ -503,6 +506,10 @@ def cross_check(spec: TableSpec) -> list[tuple[str, str]]:
                 out.append((f"{loc}.reported", f"unknown column {cid!r}{names.suggest(cid, col_ids)}"))
                 continue
             col = spec.column(cid)
+            if col.harness:
+                out.append((f"{loc}.reported.{cid}", "a harness column is not in the paper: "
+                                                     "it has no reported values"))
+                continue
             if cell.percent and col.unit != "%":
                 out.append((f"{loc}.reported.{cid}", f"printed {cell.printed!r} has '%' but the "
                                                      f"column's unit is {col.unit!r}"))
@@ -514,6 +521,9 @@ def cross_check(spec: TableSpec) -> list[tuple[str, str]]:
         for cid in cl.column:
             if cid not in col_ids:
                 out.append((f"{loc}.column", f"unknown column {cid!r}{names.suggest(cid, col_ids)}"))
+            elif spec.column(cid).harness:
+                out.append((f"{loc}.column", f"column {cid!r} is a harness column: the paper "
+                                             "claims nothing about it"))
         for field in ("better", "than", "a", "b", "rows"):
             val = getattr(cl, field)
             for rid in ([val] if isinstance(val, str) else (val or [])):

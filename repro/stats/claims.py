@@ -17,14 +17,18 @@ started from a rough posterior draw around each row's mean and spread, 100 steps
 first 25 are discarded (τ ≈ 10 steps, so about 450 effective samples).  The result carries
 P(claim), the effective sample size of μ_A - μ_B (emcee's integrated autocorrelation time)
 and the mean acceptance fraction.  Verdict (see
-:func:`verdict`): "supported" at P >= 0.95, "contradicted" at P <= 0.05, else "inconclusive";
-an effective sample size under ``min_ess`` is reported as "inconclusive" too, with a reason.
+:func:`verdict`): "supported" at P >= 0.95, "contradicted" at P <= 0.05, else "inconclusive".
+A chain that did not mix is "inconclusive" with the reason, whatever its P: a mean acceptance
+fraction of 0 (no walker ever moved, e.g. rows 10^6 pooled sds apart put every proposal
+outside the prior's bounds), or an effective sample size that is not finite or under
+``min_ess``.
 
-Honest edge cases:
+Honest edge cases (``decided_by`` says which applies):
 - a row with a single replicate has no spread to learn from: no sampling, P = NaN,
-  verdict "inconclusive", reason given;
-- both rows with zero spread (every replicate identical, e.g. a deterministic metric): the
-  claim is decided by the values themselves, P = 1 or 0, with the reason recorded and
+  verdict "inconclusive", reason given (``decided_by = "nothing"``);
+- both rows with zero spread (every replicate identical, e.g. a deterministic metric such as
+  Δ_JPE with z = μ from one training): there is no posterior to speak of, so P = NaN; the
+  verdict is decided by the values themselves (``decided_by = "values"``), with that reason;
   ``ess``/``acceptance`` NaN.
 
 Calibration (tests/test_stats_claims.py): with equal true means, "supported" comes out in about
@@ -46,7 +50,8 @@ without the artefact.  Why Normal rather than t(4): a replicate's slope averages
 of its curve, so it is close to normal, and with the reference prior P("lower") >= 0.95 is then
 exactly the one-sided t test at 5 %: with a true slope of zero, "supported" comes out in 5 % of
 runs (tests/test_stats_claims.py checks this by simulation).  The same edge cases as above:
-one replicate → P = NaN, "inconclusive"; no spread at all → decided by the value, with a reason.
+one replicate → P = NaN, "inconclusive"; no spread at all → decided by the value, P = NaN, with a
+reason.
 """
 
 from __future__ import annotations
@@ -76,6 +81,7 @@ class ClaimResult:
     delta: float = 0.0
     n_a: int = 0
     n_b: int = 0
+    decided_by: str = "posterior"  # "posterior", "values" (no spread anywhere) or "nothing"
 
     def to_dict(self) -> dict:
         def num(x):
@@ -83,7 +89,8 @@ class ClaimResult:
 
         return {"probability": num(self.probability), "verdict": self.verdict, "ess": num(self.ess),
                 "acceptance": num(self.acceptance), "reason": self.reason,
-                "direction": self.direction, "delta": self.delta, "n_a": self.n_a, "n_b": self.n_b}
+                "direction": self.direction, "delta": self.delta, "n_a": self.n_a, "n_b": self.n_b,
+                "decided_by": self.decided_by}
 
 
 def verdict(p: float, supported_at: float = 0.95, contradicted_at: float = 0.05) -> str:
@@ -164,15 +171,16 @@ def claim_probability(a_values, b_values, direction: Literal["lower", "higher"] 
     if a.size < 2 or b.size < 2:
         which = " and ".join(n for n, x in (("A", a), ("B", b)) if x.size < 2)
         return ClaimResult(nan, INCONCLUSIVE, 0.0, nan,
-                           reason=f"row {which} has a single replicate: no spread to estimate", **common)
+                           reason=f"row {which} has a single replicate: no spread to estimate",
+                           decided_by="nothing", **common)
     sign = 1.0 if direction == "lower" else -1.0  # claim: sign·(mu_B - mu_A) >= delta
     var_a, var_b = np.var(a, ddof=1), np.var(b, ddof=1)
     if var_a == 0.0 and var_b == 0.0:
         gap = sign * (b[0] - a[0])
         holds = bool(gap > 0.0) if delta == 0.0 else bool(gap >= delta)  # "lower" is strict
-        return ClaimResult(float(holds), SUPPORTED if holds else CONTRADICTED, nan, nan,
-                           reason="no spread in either row: decided by the (identical) replicate values",
-                           **common)
+        return ClaimResult(nan, SUPPORTED if holds else CONTRADICTED, nan, nan,
+                           reason="no spread in either row: decided by the values themselves, "
+                                  "no posterior probability", decided_by="values", **common)
     scale = math.sqrt((var_a * (a.size - 1) + var_b * (b.size - 1)) / (a.size + b.size - 2))
     center = float(np.concatenate([a, b]).mean())
     za, zb = (a - center) / scale, (b - center) / scale
@@ -190,8 +198,12 @@ def claim_probability(a_values, b_values, direction: Literal["lower", "higher"] 
     ess = float(diff.size / max(tau, 1.0))
     acceptance = float(np.mean(sampler.acceptance_fraction))
     v, reason = verdict(p), None
-    if ess < min_ess:
-        v, reason = INCONCLUSIVE, f"effective sample size {ess:.0f} < {min_ess:.0f}"
+    if not acceptance > 0.0:  # no walker ever moved: the chain says nothing
+        v, reason = INCONCLUSIVE, "the sampler did not mix (acceptance 0)"
+    elif not (math.isfinite(ess) and ess >= min_ess):  # NaN compares False: test it explicitly
+        v, reason = INCONCLUSIVE, (f"the sampler did not mix (effective sample size "
+                                   f"{ess:.0f} < {min_ess:.0f})" if math.isfinite(ess) else
+                                   "the sampler did not mix (effective sample size not finite)")
     return ClaimResult(p, v, ess, acceptance, reason=reason, **common)
 
 
@@ -213,7 +225,8 @@ def mean_probability(values, direction: Literal["lower", "higher", "within"] = "
     nan = float("nan")
     if x.size < 2:
         return ClaimResult(nan, INCONCLUSIVE, 0.0, nan,
-                           reason="a single replicate: no spread to estimate", **common)
+                           reason="a single replicate: no spread to estimate",
+                           decided_by="nothing", **common)
     m, sd = float(x.mean()), float(np.std(x, ddof=1))
     if sd == 0.0:
         if direction == "within":
@@ -222,8 +235,9 @@ def mean_probability(values, direction: Literal["lower", "higher", "within"] = "
             holds = m < 0.0 if delta == 0.0 else m <= -delta
         else:
             holds = m > 0.0 if delta == 0.0 else m >= delta
-        return ClaimResult(float(holds), SUPPORTED if holds else CONTRADICTED, nan, nan,
-                           reason="no spread across replicates: decided by the (identical) values",
+        return ClaimResult(nan, SUPPORTED if holds else CONTRADICTED, nan, nan,
+                           reason="no spread across replicates: decided by the values "
+                                  "themselves, no posterior probability", decided_by="values",
                            **common)
     se, df = sd / math.sqrt(x.size), x.size - 1
     if direction == "lower":

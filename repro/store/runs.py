@@ -54,6 +54,7 @@ TERMINAL = frozenset({FINISHED, FAILED, INTERRUPTED})
 _NEXT = {QUEUED: {RUNNING, FAILED, INTERRUPTED}, RUNNING: {FINISHED, FAILED, INTERRUPTED}}
 PACKAGES = ("torch", "numpy", "scipy", "scikit-learn", "roma", "pydantic", "repro")
 RUN_JSON, VALUES_JSONL, SUMMARY_JSON = "run.json", "values.jsonl", "summary.json"
+TRAININGS_JSON = "trainings.json"
 _READ_ONLY = stat.S_IRUSR | stat.S_IRGRP | stat.S_IROTH
 
 log = logging.getLogger("repro.runs")
@@ -319,6 +320,14 @@ class RunRecorder:
         atomic_write_json(self.path / SUMMARY_JSON, {**jsonable(dict(summary)),
                                                       "schema": SUMMARY_SCHEMA})
         self._reindex()
+
+    def write_trainings(self, trainings: list) -> None:
+        """``trainings.json``: every training of the run with its learning curve (per-epoch
+        loss terms, validation error, steps), as :func:`repro.engine.tables.collect_trainings`
+        returns them."""
+        self._check_open()
+        atomic_write_json(self.path / TRAININGS_JSON, {"schema": 1,
+                                                        "trainings": jsonable(list(trainings))})
 
     def _close(self, status: str, *, error: str | None = None, note: str | None = None) -> None:
         self._transition(status)

@@ -15,6 +15,14 @@ history, so a run killed after any checkpoint and started again with the same ar
 with byte-identical weights to an uninterrupted run.  Checkpoints are written atomically
 (temp file + ``os.replace``) beside a ``config.json`` describing what is being trained
 (MDM/ACTOR style); a checkpoint whose config differs is ignored, never resumed from.
+
+History: one record per epoch, the means over its batches of the scalars ``step`` returned,
+plus ``epoch`` and ``batches`` (optimiser steps in the epoch).  With ``validate(model, epoch)``
+the loop also calls it after each epoch's optimisation, in eval mode, under ``no_grad`` and
+with the global torch RNG forked and seeded from ``(seed, "validation", epoch)``, and stores
+what it returns with a ``val_`` prefix: validation never moves the training's random stream,
+so the weights (and exact resume) are the same with or without it.  The history is in the
+checkpoint, so a resumed run's curve is the uninterrupted run's.
 """
 
 from __future__ import annotations
@@ -66,12 +74,15 @@ def train(
     grad_clip: float | None = None,
     on_epoch: Callable[[int, dict[str, float]], None] | None = None,
     scheduler=None,
+    validate: Callable[[Any, int], dict[str, float]] | None = None,
 ) -> TrainResult:
     """Train ``model`` for ``epochs`` epochs (see module docstring); returns the loss history.
 
     ``config`` is the resolved configuration of what is being trained; it is saved beside the
     checkpoint and guards resumption.  ``checkpoint_every`` is in epochs (the last epoch is
-    always checkpointed).  ``grad_clip`` clips the global gradient norm.
+    always checkpointed).  ``grad_clip`` clips the global gradient norm.  ``validate(model,
+    epoch)`` returns scalars measured on held-out data after each epoch (stored as ``val_*``;
+    it must not change the model); ``on_epoch`` sees the record with them.
     """
     import torch
 
@@ -124,6 +135,9 @@ def train(
             scheduler.step()
         rec = {k: v / max(n, 1) for k, v in sums.items()}
         rec["epoch"] = epoch
+        rec["batches"] = n
+        if validate is not None:
+            rec.update(_validation(model, validate, seed, epoch))
         history.append(rec)
         if on_epoch is not None:
             on_epoch(epoch, rec)
@@ -142,6 +156,22 @@ def train(
     model.eval()
     return TrainResult(epochs=epochs, resumed_from=resumed_from, history=history,
                        seconds=time.perf_counter() - t0)
+
+
+def _validation(model, validate, seed: int, epoch: int) -> dict[str, float]:
+    """``validate(model, epoch)`` in eval mode, without gradients, on a forked global RNG seeded
+    from ``(seed, "validation", epoch)``; its scalars with a ``val_`` prefix.  The caller puts
+    the model back in train mode at the next epoch."""
+    import torch
+
+    devices = (list(range(torch.cuda.device_count()))
+               if torch.cuda.is_available() and torch.cuda.is_initialized() else [])
+    with torch.random.fork_rng(devices=devices):
+        torch.manual_seed(derive_seed(seed, "validation", epoch))
+        model.eval()
+        with torch.no_grad():
+            out = validate(model, epoch) or {}
+    return {f"val_{k}": float(v.detach() if hasattr(v, "detach") else v) for k, v in out.items()}
 
 
 def finite_or_none(x: float) -> float | None:

@@ -41,14 +41,14 @@ removes heading: chained actions take any heading, ``evaluator_heading``), avera
 
 Per action index x (Fig. 8), ``acc@x`` and ``fid@x`` score the actions at index x;
 ``action_qr@x`` / ``motion_qr@x`` the first x actions (``qr_over_prefix``);
-``pose_gap@x`` / ``vel_gap@x`` the junction into action x.
+``pose_gap@x`` / ``vel_gap@x`` the junction into action x.  The harness columns of
+:mod:`repro.eval.memorisation` (in no paper; ``memorisation``) score the same actions (from
+``score_from_action`` on) against the training items; the Real row gets the two
+nearest-training distances of the real actions at the scored positions.
 """
 
 from __future__ import annotations
 
-import io
-import json
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Literal
@@ -60,27 +60,23 @@ from pydantic import Field
 from repro.data.clipset import TEST, TRAIN
 from repro.data.contexts import ItemSource, _cached
 from repro.errors import ConfigError, DataError
+from repro.eval.memorisation import HARNESS_METRICS
 from repro.eval.protocols import register
-from repro.eval.protocols.base import Protocol, ProtocolParams
+from repro.eval.protocols.base import ItemSourceParams, Protocol
 from repro.keys import content_key
 from repro.models.items import ActionItems, GeneratedItems, condition_items
 from repro.motion.motion import Motion
-from repro.motion.skeleton import Skeleton
 from repro.seeding import derive_seed, numpy_rng
 
 SAVE_FORMAT = 1
-METRICS = ("acc", "fid", "pose_gap", "vel_gap", "action_qr", "motion_qr")
-REAL_METRICS = ("acc", "fid", "action_qr", "motion_qr")
+METRICS = ("acc", "fid", "pose_gap", "vel_gap", "action_qr", "motion_qr", *HARNESS_METRICS)
+REAL_METRICS = ("acc", "fid", "action_qr", "motion_qr", "nn_train_feat", "nn_train_joint")
 
 
-class MultiActionParams(ProtocolParams):
+class MultiActionParams(ItemSourceParams):
     """Parameters of :class:`MultiAction` (frames, fps; the paper's values first)."""
 
     # fixed by the paper (§5.2.1, supp. §4.2)
-    initial_frames: int = Field(6, ge=1, description="frames of initial motion (supp. §3)")
-    fps: float = Field(30.0, gt=0, description="frame rate the data must have")
-    test_fraction: float = Field(0.2, gt=0, lt=1, description="test share per class (§5.1.1)")
-    test_cap_per_class: int = Field(100, ge=1, description="test clips per class at most")
     candidate_confidence: float = Field(0.5, ge=0, le=1,
                                         description="evaluator confidence a candidate needs")
     sequences: int | None = Field(764, ge=1, description="test sequences (None: one per candidate)")
@@ -92,11 +88,6 @@ class MultiActionParams(ProtocolParams):
     qr_over_prefix: bool = Field(True, description="per-index QR over the first x actions")
     replicates: int | None = Field(None, ge=1, description="read by the engine (scale profile)")
     # open choices (docs/protocols.md §5; docs/multi_action.md)
-    split: Literal["marionette", "dataset"] = "marionette"
-    split_seed: int = 0
-    context: Literal["sequence", "same_clip"] = "sequence"
-    compose: dict = Field(default_factory=dict)
-    max_frames: int = Field(120, ge=1, description="cap on an action's duration (frames)")
     test_set_seed: int = Field(0, description="seed of the test-set construction")
     last_next_tag: Literal["same", "own"] = "same"
     evaluator_heading: Literal["remove", "yaw_augment"] = Field(
@@ -108,6 +99,9 @@ class MultiActionParams(ProtocolParams):
         "or every candidate once")
     fid_method: Literal["eigh", "scipy"] = "eigh"
     vel_gap_frames: Literal["boundary", "junction"] = "boundary"
+    memorisation: bool = Field(True, description="harness columns beyond the paper "
+                               "(repro.eval.memorisation), over the scored actions")
+    prdc_k: int = Field(5, ge=1, description="k of precision/recall/density/coverage")
 
 
 @dataclass(frozen=True)
@@ -159,7 +153,7 @@ class MultiAction(Protocol):
     metrics = METRICS
     real_metrics = REAL_METRICS
     evaluator_kind = "transformer"
-    version = 1
+    version = 2  # 2: harness columns
     #: the engine gives generate jobs the evaluator (candidates, Action Revision)
     generation_uses_evaluator = True
 
@@ -171,12 +165,7 @@ class MultiAction(Protocol):
 
     # -- data ------------------------------------------------------------------------------
     def item_source(self) -> ItemSource:
-        p = self.params
-        return ItemSource.make(f"protocol {self.id!r}", context=p.context, fps=p.fps,
-                               split=p.split, split_seed=p.split_seed,
-                               test_fraction=p.test_fraction,
-                               test_cap_per_class=p.test_cap_per_class, n_init=p.initial_frames,
-                               max_frames=p.max_frames, compose=p.compose)
+        return self.params.item_source(f"protocol {self.id!r}")
 
     def split_clipset(self, clipset):
         return self.item_source().split_clipset(clipset)
@@ -239,44 +228,11 @@ class MultiAction(Protocol):
         if cand.size == 0:
             raise DataError(f"no test action reaches the candidate confidence "
                             f"{p.candidate_confidence} (supp. §4.2)")
-        labels = items.labels.numpy()
-        own_next = items.next_labels.numpy()
-        C = items.n_classes
-        by_tag = {c: cand[labels[cand] == c] for c in range(C)}
-        has = np.array([by_tag[c].size > 0 for c in range(C)])
-        counts = self.transition_counts(clipset)
-        # MultiAction.id, not self.id: Table 5 (ss_ar) scores the same overall set as Table 3;
-        # the first actions do not depend on the set either (overall and sufficient start alike)
-        first_rng = numpy_rng(p.test_set_seed, MultiAction.id, "first_actions")
-        rng = numpy_rng(p.test_set_seed, MultiAction.id, "test_set", p.test_set)
-        S = cand.size if p.sequences is None else p.sequences
-        if S <= cand.size:
-            first = np.sort(first_rng.choice(cand, size=S, replace=False))
-        else:  # more sequences than candidates: every candidate once, the rest drawn again
-            first = np.concatenate([cand, first_rng.choice(cand, size=S - cand.size,
-                                                           replace=True)])
-        L = p.actions_per_sequence
-        acts = np.empty((S, L), np.int64)
-        acts[:, 0] = first
-        for s in range(S):
-            for i in range(1, L):
-                cur = acts[s, i - 1]
-                tag = labels[cur]
-                connected = np.flatnonzero(counts[tag] > 0)
-                if p.test_set == "overall":
-                    options = connected
-                else:
-                    order = connected[np.argsort(-counts[tag, connected], kind="stable")]
-                    options = np.unique(np.concatenate(
-                        [order[:p.sufficient_top_k], [tag], [own_next[cur]]]).astype(np.int64))
-                options = options[(options >= 0) & has[options]] if options.size else options
-                if options.size == 0:
-                    options = np.array([tag])
-                nxt = int(rng.choice(options))
-                acts[s, i] = int(rng.choice(by_tag[nxt]))
-        nl = np.empty_like(acts)
-        nl[:, :-1] = labels[acts[:, 1:]]
-        nl[:, -1] = labels[acts[:, -1]] if p.last_next_tag == "same" else own_next[acts[:, -1]]
+        from repro.eval.test_sequences import draw_test_sequences
+
+        acts, nl = draw_test_sequences(items.labels.numpy(), items.next_labels.numpy(), cand,
+                                       self.transition_counts(clipset), items.n_classes, p,
+                                       MultiAction.id)
         return TestSet(acts, nl, cand, conf)
 
     # -- generation -------------------------------------------------------------------------
@@ -409,7 +365,37 @@ class MultiAction(Protocol):
         for i in range(1, L):
             out[f"pose_gap@{i + 1}"] = float(pg[:, i].mean())
             out[f"vel_gap@{i + 1}"] = float(vg[:, i].mean())
+        if self.params.memorisation:
+            real = self._scored(items.subset(ts.actions.reshape(-1)).real(), S, L)
+            real_feats, _ = self._encode(evaluator, real,
+                                         derive_seed(0, MultiAction.id, "fid-reference"))
+            out.update(self._harness(self._scored(generated, S, L),
+                                     self._scored_rows(feats.reshape(S * L, -1), S, L),
+                                     evaluator, clipset, seed, real_feats))
         return out
+
+    def _scored_rows(self, x, S: int, L: int):
+        """The rows of a sequence-major (S·L, ...) array that the averages count (actions from
+        ``score_from_action`` on)."""
+        f = self.params.score_from_action - 1
+        keep = (np.arange(S)[:, None] * L + np.arange(f, L)[None, :]).reshape(-1)
+        return x[torch.from_numpy(keep)] if isinstance(x, torch.Tensor) else x[keep]
+
+    def _scored(self, g: GeneratedItems, S: int, L: int) -> GeneratedItems:
+        keep = self._scored_rows(torch.arange(S * L), S, L)
+        return GeneratedItems(g.motion.select(keep), g.lengths[keep], g.labels[keep])
+
+    def _harness(self, motion: GeneratedItems, feats, evaluator, clipset, seed: int,
+                 real_feats=None) -> dict[str, float]:
+        """The harness columns (:mod:`repro.eval.memorisation`) of the scored actions against
+        the training items (the same ones the models train on)."""
+        from repro.eval.memorisation import harness_values
+
+        bank = self.train_items(clipset)
+        bank_feats, _ = self._encode(evaluator, bank.real(), derive_seed(seed, self.id, "bank"))
+        return harness_values(motion.motion, motion.lengths, feats, bank.real().motion,
+                              bank.lengths, bank_feats, evaluator.settings.window, real_feats,
+                              k=self.params.prdc_k)
 
     def _quality(self, feats: np.ndarray, correct: np.ndarray, reference) -> dict[str, float]:
         """acc, fid, action_qr, motion_qr (from ``score_from_action`` on) and per index."""
@@ -456,55 +442,43 @@ class MultiAction(Protocol):
         if reference is None:
             reference = self.fid_reference(items, ts, evaluator)
         correct = (np.asarray(logits).argmax(1) == sub.labels.numpy()).reshape(S, L)
-        return self._quality(np.asarray(feats).reshape(S, L, -1), correct, reference)
+        out = self._quality(np.asarray(feats).reshape(S, L, -1), correct, reference)
+        if self.params.memorisation:  # the level of fresh real data
+            mem = self._harness(self._scored(sub.real(), S, L),
+                                self._scored_rows(np.asarray(feats), S, L), evaluator, clipset,
+                                derive_seed(seed, self.id, "real", int(replicate)))
+            out.update({k: mem[k] for k in ("nn_train_feat", "nn_train_joint")})
+        return out
 
     # -- keeping samples --------------------------------------------------------------------
     def save_generated(self, generated: MultiActionSamples, path: str | Path) -> Path:
-        from repro.store.atomic import atomic_write_bytes
+        """The samples as npz (:mod:`repro.eval.sample_files`) plus ``revised``; ``meta`` adds
+        the sequence shape and the test set's key."""
+        from repro.eval.sample_files import motion_arrays, save_samples
 
-        path = Path(path)
         m = generated.motion
         meta = {"format": SAVE_FORMAT, "protocol": self.id, "skeleton": m.skeleton.to_dict(),
                 "fps": m.fps, "n_sequences": generated.n_sequences,
                 "n_actions": generated.n_actions, "test_set": generated.test_set_key}
         rev = generated.revised if generated.revised is not None else \
             torch.zeros(len(generated), dtype=torch.bool)
-        buf = io.BytesIO()
-        np.savez_compressed(buf, meta=np.array(json.dumps(meta, sort_keys=True)),
-                            root=m.root.detach().cpu().numpy(),
-                            rot6d=m.rot6d.detach().cpu().numpy(),
-                            lengths=generated.lengths.cpu().numpy().astype(np.int64),
-                            labels=generated.labels.cpu().numpy().astype(np.int64),
-                            revised=rev.cpu().numpy().astype(bool))
-        atomic_write_bytes(path, buf.getvalue())
-        return path
+        return save_samples(path, meta, {**motion_arrays(generated),
+                                         "revised": rev.cpu().numpy().astype(bool)})
 
     def load_generated(self, path: str | Path) -> MultiActionSamples:
-        path = Path(path)
-        if not path.is_file():
-            raise DataError("no such samples file", path)
+        from repro.eval.sample_files import load_samples, motion_set
+
+        meta, data, skeleton = load_samples(path, protocol=self.id, fmt=SAVE_FORMAT)
+        g = motion_set(data, meta, skeleton, path)
         try:
-            with np.load(path, allow_pickle=False) as z:
-                data = {k: z[k] for k in z.files}
-            meta = json.loads(str(data["meta"]))
-            skeleton = Skeleton.from_dict(meta["skeleton"])
-            motion = Motion(torch.from_numpy(data["root"]), torch.from_numpy(data["rot6d"]),
-                            skeleton, meta["fps"])
             S, L = int(meta["n_sequences"]), int(meta["n_actions"])
-            lengths = torch.from_numpy(data["lengths"].astype(np.int64))
-            labels = torch.from_numpy(data["labels"].astype(np.int64))
             revised = torch.from_numpy(data["revised"].astype(bool))
-        except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile) as e:
-            raise DataError(f"not a {self.id} samples file ({type(e).__name__}: {e})",
-                            path) from None
-        if meta.get("format") != SAVE_FORMAT or meta.get("protocol") != self.id:
-            raise DataError(f"samples of format {meta.get('format')!r} / protocol "
-                            f"{meta.get('protocol')!r}, expected {SAVE_FORMAT} / {self.id!r}", path)
-        n = motion.batch_size
-        if n != S * L or lengths.shape != (n,) or labels.shape != (n,) or revised.shape != (n,) \
-                or (n and (int(lengths.min()) < 1 or int(lengths.max()) > motion.n_frames)):
+        except (KeyError, ValueError, TypeError) as e:
+            raise DataError(f"malformed samples ({type(e).__name__}: {e})", path) from None
+        n = len(g)
+        if n != S * L or revised.shape != (n,):
             raise DataError("malformed samples: shapes do not fit", path)
-        return MultiActionSamples(motion, lengths, labels, n_sequences=S, n_actions=L,
+        return MultiActionSamples(g.motion, g.lengths, g.labels, n_sequences=S, n_actions=L,
                                   revised=revised, test_set_key=str(meta.get("test_set", "")))
 
 

@@ -30,13 +30,18 @@ the evaluator's (the transformer recogniser's) features and logits:
 - ``jpe`` (Δ_JPE, undefined in the paper): mean per-joint position error against the test
   clip's real action, centimetres, of the generation named by ``jpe_mode`` (default ``"mean"``:
   free-running generation with the latent set to its mean, which exposes the train-test
-  discrepancy the paper attributes Δ_JPE to).
+  discrepancy the paper attributes Δ_JPE to);
+- harness columns, in no paper (``memorisation``; :mod:`repro.eval.memorisation`, given the
+  data set): ``nn_train_feat`` / ``nn_train_joint`` (distance of each sample to its nearest
+  training action, in feature and in joint space) and ``precision``, ``recall``, ``density``,
+  ``coverage`` of the samples' features against the real test features (k = ``prdc_k``).
 
 Each action is shown to the evaluator as ``eval_clip`` says (default: its centred window of
 the evaluator's ``window`` frames, shorter actions padded by repeating their last frame), the
 same for real and generated actions.  The "Real Test Data" row
 (:meth:`SingleAction.real_replicate`) scores, per replicate, a seeded per-tag bootstrap
-resample of the real test actions (``real_resample``): ``fid``, ``acc``, ``div``, ``multimod``;
+resample of the real test actions (``real_resample``): ``fid``, ``acc``, ``div``, ``multimod``
+and the two nearest-training distances (the level of fresh data);
 Δ_Traj and Δ_JPE are "/" (the paper prints "/" for Δ_Traj; both are zero on real data).
 
 Every choice the paper leaves open is a field of :class:`SingleActionParams` (docs/protocols.md).
@@ -45,9 +50,6 @@ Every choice the paper leaves open is a field of :class:`SingleActionParams` (do
 from __future__ import annotations
 
 import dataclasses
-import io
-import json
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Literal
@@ -58,21 +60,20 @@ from pydantic import Field
 
 from repro.data.clipset import TEST
 from repro.errors import ConfigError, DataError
+from repro.eval.memorisation import HARNESS_METRICS
 from repro.eval.protocols import register
-from repro.eval.protocols.base import Protocol, ProtocolParams
+from repro.eval.protocols.base import ItemSourceParams, Protocol
 from repro.keys import content_key
 from repro.data.contexts import ItemSource, _cached
 from repro.models.items import ActionItems, GeneratedItems, ItemsConfig
-from repro.motion.motion import Motion
-from repro.motion.skeleton import Skeleton
 from repro.seeding import derive_seed, numpy_rng
 
 SAVE_FORMAT = 1
-METRICS = ("fid", "acc", "div", "multimod", "traj_err", "jpe")
-REAL_METRICS = ("fid", "acc", "div", "multimod")
+METRICS = ("fid", "acc", "div", "multimod", "traj_err", "jpe", *HARNESS_METRICS)
+REAL_METRICS = ("fid", "acc", "div", "multimod", "nn_train_feat", "nn_train_joint")
 
 
-class SingleActionParams(ProtocolParams):
+class SingleActionParams(ItemSourceParams):
     """Parameters of :class:`SingleAction` (units: frames, fps, metres).
 
     The first group is what Neural Marionette fixes (the specs' ``protocol_params``), the
@@ -80,10 +81,6 @@ class SingleActionParams(ProtocolParams):
     """
 
     # fixed by the paper (§5.1.1, supp. §3)
-    initial_frames: int = Field(6, ge=1, description="frames of initial motion (supp. §3)")
-    fps: float = Field(30.0, gt=0, description="frame rate the data must have (supp. §3)")
-    test_fraction: float = Field(0.2, gt=0, lt=1, description="test share per class (§5.1.1)")
-    test_cap_per_class: int = Field(100, ge=1, description="test clips per class at most (§5.1.1)")
     trajectory: Literal["input", "none"] = Field(
         "input", description="root actions get the test clip's trajectory as input ('none': zeros)")
     # the scale profile
@@ -91,16 +88,7 @@ class SingleActionParams(ProtocolParams):
         None, ge=1, description="scored test items per class at most (None: all)")
     replicates: int | None = Field(None, ge=1, description="read by the engine (scale profile)")
     # open choices (docs/protocols.md)
-    split: Literal["marionette", "dataset"] = Field(
-        "marionette", description="Marionette's per-class split, or the data set's stored one")
-    split_seed: int = Field(0, description="seed of the Marionette split")
-    context: Literal["sequence", "same_clip"] = Field(
-        "sequence", description="where P^ini and the next tag come from: the action's composed "
-        "sequence (repro.data.contexts), or the clip itself (the earlier, leaking construction)")
-    compose: dict = Field(default_factory=dict,
-                          description="repro.data.sequences.ComposeConfig overrides")
     selection_seed: int = Field(0, description="seed of the samples_per_class choice")
-    max_frames: int = Field(120, ge=1, description="cap on an action's duration (frames)")
     eval_clip: Literal["centre", "start", "whole"] = Field(
         "centre", description="what the evaluator sees of an action: its centred or first "
         "window of the evaluator's length, or the whole action")
@@ -115,6 +103,11 @@ class SingleActionParams(ProtocolParams):
     jpe_mode: Literal["mean", "sampled", "teacher_forced"] = Field(
         "mean", description="the generation Δ_JPE compares with the real action")
     fid_method: Literal["eigh", "scipy"] = Field("eigh", description="repro.metrics.fid method")
+    memorisation: bool = Field(True, description="harness columns beyond the paper: nearest-"
+                               "training distances, precision/recall/density/coverage "
+                               "(repro.eval.memorisation)")
+    prdc_k: int = Field(5, ge=1, description="k of precision/recall/density/coverage "
+                        "(Naeem et al. 2020's 5)")
     real_resample: Literal["bootstrap", "none"] = Field(
         "bootstrap", description="Real row replicate: a per-tag bootstrap resample of the real "
         "test actions, or those actions themselves (only the pair draws vary)")
@@ -169,19 +162,15 @@ class SingleAction(Protocol):
     metrics = METRICS
     real_metrics = REAL_METRICS
     evaluator_kind = "transformer"
-    version = 2  # 2: items from composed sequences (repro.data.contexts)
+    version = 3  # 2: items from composed sequences (repro.data.contexts); 3: harness columns
+    measure_uses_clipset = True  # the harness columns read the training items
 
     params: SingleActionParams
 
     # -- data ------------------------------------------------------------------------------
     def item_source(self) -> ItemSource:
         """How items are made (shared with the multi-action protocols and the training step)."""
-        p = self.params
-        return ItemSource.make(f"protocol {self.id!r}", context=p.context, fps=p.fps,
-                               split=p.split, split_seed=p.split_seed,
-                               test_fraction=p.test_fraction,
-                               test_cap_per_class=p.test_cap_per_class, n_init=p.initial_frames,
-                               max_frames=p.max_frames, compose=p.compose)
+        return self.params.item_source(f"protocol {self.id!r}")
 
     def split_clipset(self, clipset):
         """``clipset`` with the protocol's train/test split (train the evaluator on this one
@@ -324,26 +313,54 @@ class SingleAction(Protocol):
                 raise ConfigError("fid_reference 'train_items' needs the data set: pass "
                                   "measure(..., reference=protocol.fid_reference(clipset, ...))")
             items = self.train_items(clipset)
+        return FeatureStats.of(self._real_features(evaluator, items, seed))
+
+    def _real_features(self, evaluator, items: ActionItems, seed: int) -> np.ndarray:
+        """The evaluator's features of ``items``' real actions (FID's reference pass)."""
         feats, _ = self._encode(evaluator, items.real(), derive_seed(seed, "single_action",
                                                                       "fid-reference"))
-        return FeatureStats.of(feats)
+        return feats
+
+    def memorisation(self, motion: GeneratedItems, feats, items: ActionItems, evaluator,
+                     clipset, *, seed: int, real_feats=None) -> dict[str, float]:
+        """The harness columns of :mod:`repro.eval.memorisation` for ``motion`` (the actions
+        of ``items``, features ``feats``): nearest-training distances against the protocol's
+        training items, and, with ``real_feats``, precision/recall/density/coverage."""
+        from repro.eval.memorisation import harness_values
+
+        bank = self.train_items(clipset)
+        bank_feats, _ = self._encode(evaluator, bank.real(),
+                                     derive_seed(seed, "single_action", "train-bank"))
+        return harness_values(motion.motion, motion.lengths, feats, bank.real().motion,
+                              bank.lengths, bank_feats, evaluator.settings.window, real_feats,
+                              k=self.params.prdc_k)
 
     def measure(self, generated: GeneratedItems, items: ActionItems, evaluator, *, seed: int,
-                reference=None) -> dict[str, float]:
+                reference=None, clipset=None) -> dict[str, float]:
         """One replicate's ``{metric_id: value}`` (module docstring): ``fid``, ``acc``, ``div``,
         ``multimod`` always; ``traj_err`` when some scored item is a root action (or
-        ``traj_items = "all"``); ``jpe`` when its pass is present (``jpe_mode``).
+        ``traj_items = "all"``); ``jpe`` when its pass is present (``jpe_mode``); with
+        ``clipset`` (and ``memorisation``) the harness columns (:meth:`memorisation`).
 
         ``seed`` drives the evaluator's noise (random-h0 GRUs only) and the Div/Multimod pair
         draws; ``reference``: precomputed :meth:`fid_reference` statistics."""
+        from repro.metrics.fid import FeatureStats
+
         self._check_generated(generated, items, "samples")
         self._check_evaluator(evaluator, items)
         feats, logits = self._encode(evaluator, generated, derive_seed(seed, "single_action",
                                                                         "features"))
+        harness = clipset is not None and self.params.memorisation
+        real_feats = self._real_features(evaluator, items, seed) if harness else None
         if reference is None:
-            reference = self.fid_reference(None, items, evaluator, seed=seed)
+            reference = FeatureStats.of(real_feats) if (
+                real_feats is not None and self.params.fid_reference == "test_items") else \
+                self.fid_reference(clipset, items, evaluator, seed=seed)
         out = self._feature_metrics(feats, logits, items.labels.numpy(), items.n_classes,
                                     derive_seed(seed, "single_action", "pairs"), reference)
+        if harness:
+            out.update(self.memorisation(generated, feats, items, evaluator, clipset, seed=seed,
+                                         real_feats=real_feats))
         traj = self.trajectory_error(generated, items)
         if traj is not None:
             out["traj_err"] = traj
@@ -414,71 +431,35 @@ class SingleAction(Protocol):
         feats, logits = self._encode(evaluator, sub.real(), derive_seed(rs, "features"))
         if reference is None:
             reference = self.fid_reference(clipset, items, evaluator, seed=seed)
-        return self._feature_metrics(feats, logits, sub.labels.numpy(), items.n_classes,
-                                     derive_seed(rs, "pairs"), reference)
+        out = self._feature_metrics(feats, logits, sub.labels.numpy(), items.n_classes,
+                                    derive_seed(rs, "pairs"), reference)
+        if clipset is not None and self.params.memorisation:  # the level of fresh real data
+            mem = self.memorisation(sub.real(), feats, sub, evaluator, clipset, seed=rs)
+            out.update({k: mem[k] for k in ("nn_train_feat", "nn_train_joint")})
+        return out
 
     # -- keeping samples --------------------------------------------------------------------
     def save_generated(self, generated: GeneratedItems, path: str | Path) -> Path:
-        """Write ``generated`` (and its Δ_JPE pass) to the npz file ``path``, atomically.
-        Arrays: ``root`` (N, T, 3) metres, ``rot6d`` (N, T, J, 6), ``lengths``, ``labels``
-        (and ``ref_*`` likewise); ``meta``: JSON (format, protocol, skeleton, fps, jpe_mode)."""
-        from repro.store.atomic import atomic_write_bytes
+        """Write ``generated`` (and its Δ_JPE pass as ``ref_*``) to the npz file ``path``,
+        atomically (:mod:`repro.eval.sample_files`; ``meta`` adds ``jpe_mode``)."""
+        from repro.eval.sample_files import motion_arrays, save_samples
 
-        path = Path(path)
         m = generated.motion
+        ref = getattr(generated, "reference", None)
         meta = {"format": SAVE_FORMAT, "protocol": self.id, "skeleton": m.skeleton.to_dict(),
                 "fps": m.fps, "jpe_mode": getattr(generated, "jpe_mode", "sampled"),
-                "has_reference": getattr(generated, "reference", None) is not None}
-        arrays = {"meta": np.array(json.dumps(meta, sort_keys=True)),
-                  "root": m.root.detach().cpu().numpy(), "rot6d": m.rot6d.detach().cpu().numpy(),
-                  "lengths": generated.lengths.cpu().numpy().astype(np.int64),
-                  "labels": generated.labels.cpu().numpy().astype(np.int64)}
-        ref = getattr(generated, "reference", None)
+                "has_reference": ref is not None}
+        arrays = motion_arrays(generated)
         if ref is not None:
-            arrays.update({"ref_root": ref.motion.root.detach().cpu().numpy(),
-                           "ref_rot6d": ref.motion.rot6d.detach().cpu().numpy(),
-                           "ref_lengths": ref.lengths.cpu().numpy().astype(np.int64),
-                           "ref_labels": ref.labels.cpu().numpy().astype(np.int64)})
-        buf = io.BytesIO()
-        np.savez_compressed(buf, **arrays)
-        atomic_write_bytes(path, buf.getvalue())
-        return path
+            arrays.update(motion_arrays(ref, "ref_"))
+        return save_samples(path, meta, arrays)
 
     def load_generated(self, path: str | Path) -> SingleActionSamples:
         """Read a file written by :meth:`save_generated` (DataError naming it when it is not one)."""
-        path = Path(path)
-        if not path.is_file():
-            raise DataError("no such samples file", path)
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                data = {k: z[k] for k in z.files}
-            meta = json.loads(str(data["meta"]))
-            fmt, proto = meta["format"], meta["protocol"]
-            skeleton = Skeleton.from_dict(meta["skeleton"])
-        except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile) as e:
-            raise DataError(f"not a single_action samples file ({type(e).__name__}: {e})",
-                            path) from None
-        if fmt != SAVE_FORMAT:
-            raise DataError(f"unsupported samples format {fmt!r} (expected {SAVE_FORMAT})", path)
-        if proto != self.id:
-            raise DataError(f"samples of protocol {proto!r}, not {self.id!r}", path)
+        from repro.eval.sample_files import load_samples, motion_set
 
-        def items_of(prefix: str) -> GeneratedItems:
-            try:
-                motion = Motion(torch.from_numpy(data[prefix + "root"]),
-                                torch.from_numpy(data[prefix + "rot6d"]), skeleton, meta["fps"])
-                lengths = torch.from_numpy(data[prefix + "lengths"].astype(np.int64))
-                labels = torch.from_numpy(data[prefix + "labels"].astype(np.int64))
-            except (KeyError, ValueError, TypeError) as e:
-                raise DataError(f"malformed samples ({type(e).__name__}: {e})", path) from None
-            n, t = motion.batch_size, motion.n_frames
-            if lengths.shape != (n,) or labels.shape != (n,) or (n and (
-                    int(lengths.min()) < 1 or int(lengths.max()) > t)):
-                raise DataError(f"malformed samples: lengths/labels do not fit {n} motions of "
-                                f"{t} frames", path)
-            return GeneratedItems(motion, lengths, labels)
-
-        main = items_of("")
-        ref = items_of("ref_") if meta.get("has_reference") else None
+        meta, data, skeleton = load_samples(path, protocol=self.id, fmt=SAVE_FORMAT)
+        main = motion_set(data, meta, skeleton, path)
+        ref = motion_set(data, meta, skeleton, path, "ref_") if meta.get("has_reference") else None
         return SingleActionSamples(main.motion, main.lengths, main.labels, reference=ref,
                                    jpe_mode=str(meta.get("jpe_mode", "sampled")))

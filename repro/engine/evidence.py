@@ -1,0 +1,171 @@
+"""What decided a claim (issue 11): the variance inside the intervals, the training budget
+against the paper's, and the evaluator; and the verdict that evidence allows.
+
+**Training budget.** A row's budget is its optimisation steps over the steps the paper's
+stated settings (the ``paper`` scale profile: epochs and batch size of the method, or of the
+method it trains as) would take *on the same training set*:
+
+    budget = epochs · ⌈S / b⌉  /  (E_paper · ⌈S / b_paper⌉),
+
+with S the training samples per epoch (items; MANN: frame pairs), read from the training's
+record (``batches`` of its first epoch × its batch size) or, for a record without them,
+the same ratio with S cancelled, ``(epochs / b) / (E_paper / b_paper)``.  The paper's own data
+set is not here (the stand-in is), so "the paper's budget" means the paper's schedule applied
+to the data at hand; a method without epochs (the retrieval reference) has no budget.
+
+**Verdict.**  A posterior verdict of "contradicted" is only printed as such when the run can
+refute the claim: every trained row involved at (at least) the paper's budget *and* the
+intervals holding training-seed variance (``--retrain``).  Otherwise it reads
+
+- ``not reproduced at this budget`` when some involved row trained for less than the paper's
+  budget (the claim may still hold with the paper's optimisation);
+- ``not reproduced (sampling variance only)`` at the paper's budget without ``--retrain``
+  (one training per row: a different training seed could reverse the ordering).
+
+"supported" and "inconclusive" are kept as they are; every verdict carries its evidence line.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+NOT_REPRODUCED_BUDGET = "not reproduced at this budget"
+NOT_REPRODUCED_SAMPLING = "not reproduced (sampling variance only)"
+CONTRADICTED = "contradicted"
+
+#: the method-config fields that count epochs; a budget factor scales all of them together,
+#: so a schedule keeps its shape (MarioNet's scheduled sampling, MANN's warm restarts)
+EPOCH_FIELDS = ("epochs", "ss_activate_epoch", "ss_accomplish_epoch", "restart_period")
+
+
+@lru_cache(maxsize=None)
+def _paper_scale():
+    from repro.specs.scales import resolve_scale
+
+    return resolve_scale("paper")
+
+
+def paper_method_config(method: str) -> dict:
+    """The paper scale profile's settings of ``method`` (empty when it states none)."""
+    try:
+        return dict(_paper_scale().method_config(method))
+    except Exception:  # an unknown method or a missing profile: no paper budget to compare
+        return {}
+
+
+def scale_epochs(config: dict, factor: float) -> dict:
+    """``config`` with every epoch count (:data:`EPOCH_FIELDS`) multiplied by ``factor``
+    (rounded; at least one epoch, a restart period of at least one, and MarioNet's scheduled
+    sampling kept inside the training).  ``factor == 1`` returns ``config`` unchanged, so the
+    ×1 point of a budget sweep is the plain run's jobs."""
+    if factor == 1:
+        return dict(config)
+    out = dict(config)
+    for k in EPOCH_FIELDS:
+        v = out.get(k)
+        if isinstance(v, int) and not isinstance(v, bool):
+            out[k] = int(round(v * factor))
+    if "epochs" in out and isinstance(out["epochs"], int):
+        out["epochs"] = max(1, out["epochs"])
+        if out.get("restart_period") is not None:
+            out["restart_period"] = max(1, out["restart_period"])
+        if "ss_activate_epoch" in out and "ss_accomplish_epoch" in out:
+            a = min(max(0, out["ss_activate_epoch"]), out["epochs"])
+            out["ss_activate_epoch"] = a
+            out["ss_accomplish_epoch"] = min(max(a, out["ss_accomplish_epoch"]), out["epochs"])
+    return out
+
+
+def training_budget(train_method: str, method_config: dict, training: dict | None) -> dict | None:
+    """A row's budget against the paper's (module docstring), or None for a method that does
+    not train by epochs.  Keys: ``fraction`` (None when the paper states no schedule),
+    ``epochs``, ``paper_epochs``, ``steps``, ``paper_steps`` (None when S is unknown)."""
+    epochs, batch = method_config.get("epochs"), method_config.get("batch_size")
+    if not epochs:
+        return None
+    paper = paper_method_config(train_method)
+    pe, pb = paper.get("epochs"), paper.get("batch_size")
+    out = {"method": train_method, "epochs": int(epochs), "paper_epochs": pe, "steps": None,
+           "paper_steps": None, "fraction": None}
+    if not pe or not pb or not batch:
+        return out
+    hist = (training or {}).get("history") or []
+    first = hist[0].get("batches") if hist and isinstance(hist[0], dict) else None
+    if first:
+        samples = int(first) * int(batch)
+        steps = int(epochs) * math.ceil(samples / int(batch))
+        paper_steps = int(pe) * math.ceil(samples / int(pb))
+        out.update(steps=steps, paper_steps=paper_steps, fraction=steps / paper_steps)
+    else:
+        out["fraction"] = (int(epochs) / int(batch)) / (int(pe) / int(pb))
+    return out
+
+
+def _pct(f: float) -> str:
+    p = 100.0 * f
+    return f"{p:.2g}%" if p < 10 else f"{p:.0f}%"
+
+
+def budget_text(b: dict, short: bool = False) -> str:
+    """``marionet 2% (140 of 7,000 steps)``; ``short``: ``marionet 2%``."""
+    if b.get("fraction") is None:
+        return f"{b['method']} {b['epochs']} epochs (the paper states no schedule)"
+    s = f"{b['method']} {_pct(b['fraction'])}"
+    if short:
+        return s
+    if b.get("steps") is not None:
+        s += f" ({b['steps']:,} of {b['paper_steps']:,} steps)"
+    else:
+        s += f" ({b['epochs']} of {b['paper_epochs']} epochs)"
+    return s
+
+
+def claim_evidence(*, rows: list[str], budgets: dict[str, dict | None], retrain: bool,
+                   replicates: int, evaluators: list[str]) -> dict:
+    """The evidence of a claim over ``rows``: variance, budgets of the trained rows involved
+    (``budgets``: row id -> :func:`training_budget` or None), evaluators; with its text."""
+    trained = {r: budgets[r] for r in rows if budgets.get(r) is not None}
+    fractions = [b["fraction"] for b in trained.values() if b.get("fraction") is not None]
+    if retrain:
+        variance = f"{replicates} independent trainings per row (training-seed variance)"
+    else:
+        variance = (f"{replicates} sampling passes of one trained model per row "
+                    "(no training-seed variance)")
+    parts = [f"variance: {variance}"]
+    if trained:
+        seen: dict[str, str] = {}
+        for b in trained.values():
+            seen.setdefault(b["method"], budget_text(b, short=True))
+        parts.append("budget vs the paper's: " + ", ".join(seen.values()))
+    else:
+        parts.append("budget: no trained row involved")
+    if evaluators:
+        parts.append("evaluator: " + "; ".join(evaluators))
+    return {"variance": "training" if retrain else "sampling", "replicates": replicates,
+            "budgets": {r: b for r, b in trained.items()},
+            "min_budget": min(fractions) if fractions else None,
+            "trained_rows": sorted(trained), "evaluators": evaluators,
+            "text": "; ".join(parts)}
+
+
+def qualified_verdict(verdict: str, evidence: dict) -> str:
+    """The verdict the evidence allows (module docstring): a posterior "contradicted" below
+    the paper's budget, or without training-seed variance, is "not reproduced", qualified."""
+    if verdict != CONTRADICTED:
+        return verdict
+    mb = evidence.get("min_budget")
+    if mb is not None and mb < 1.0 - 1e-9:
+        return NOT_REPRODUCED_BUDGET
+    if evidence.get("trained_rows") and evidence.get("variance") != "training":
+        return NOT_REPRODUCED_SAMPLING
+    return CONTRADICTED
+
+
+def evaluator_text(ev: dict | None, key: str | None = None) -> str | None:
+    if not ev:
+        return None
+    s = f"{ev.get('kind')} seed {ev.get('seed', 0)}"
+    if ev.get("heading"):
+        s += f", heading {ev['heading']}"
+    return s

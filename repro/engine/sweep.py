@@ -1,0 +1,198 @@
+"""``repro sweep``: one table rerun along one axis, every cell and claim read against it
+(issue 11, items 2 and 4).
+
+Two axes:
+
+- ``budget``: every method's epoch counts × a factor (:func:`repro.engine.evidence.scale_epochs`;
+  scheduled-sampling epochs and warm-restart periods scale with them).  The evaluators and the
+  test items do not change, so a cell's movement is the models'.  Each claim's verdicts along
+  the factors are classed **stable** (one verdict throughout), **converging** (the verdict
+  changes once and keeps its last value at the largest budgets, e.g. inconclusive →
+  supported) or **flipping** (it changes more than once).
+- ``evaluator_seed``: the same trained models and samples, scored by evaluators trained with
+  other seeds (the protocol's evaluator architecture and data; only its seed differs).  Each
+  cell gets its spread across evaluators (range and sd of the per-evaluator means); each
+  claim either **holds under all** evaluators (one verdict) or **depends on the evaluator**.
+
+Each point is an ordinary run (its own run record; cached jobs are reused: the ×1 point and the
+seed-0 point are the plain run), and the sweep writes ``sweep.json`` (schema 1) with the run
+ids, per point the cell means and intervals, claim verdicts, probabilities and budgets.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import statistics
+from pathlib import Path
+from typing import Any
+
+SWEEP_SCHEMA = 1
+AXES = ("budget", "evaluator_seed")
+
+
+def parse_factors(text: str) -> tuple[float, ...]:
+    """``"0.5,1,2,4"`` → (0.5, 1.0, 2.0, 4.0): distinct, positive, at most 12."""
+    from repro.errors import ConfigError
+
+    shown = text if len(text) <= 40 else text[:37] + "..."
+    try:
+        out = tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise ConfigError(f"--budget {shown!r}: give factors as '0.5,1,2,4'") from None
+    if not out or len(out) > 12 or len(set(out)) != len(out) or \
+            not all(math.isfinite(x) and x > 0 for x in out):
+        raise ConfigError(f"--budget {shown!r}: 1 to 12 distinct positive factors")
+    return out
+
+
+def classify_budget(verdicts: list[str]) -> str:
+    """stable / converging / flipping (module docstring)."""
+    changes = sum(1 for a, b in zip(verdicts, verdicts[1:]) if a != b)
+    if changes == 0:
+        return "stable"
+    return "converging" if changes == 1 else "flipping"
+
+
+def sweep_table(name: str, *, axis: str, points: list, scale: str = "quick",
+                dataset: str | None = None, jobs: int = 1, progress: bool = True,
+                seeds: tuple[int, ...] | None = None, retrain: bool = False) -> dict:
+    """Run ``name`` once per point of ``axis`` and return the sweep record (also written to
+    ``REPRO_HOME/sweeps/<id>/sweep.json``)."""
+    from repro.engine.runner import run_table
+    from repro.errors import ConfigError
+
+    if axis not in AXES:
+        raise ConfigError(f"sweep axis must be one of {', '.join(AXES)}, got {axis!r}")
+    points = sorted(points)
+    runs = []
+    for pt in points:
+        kw = {"budget": float(pt)} if axis == "budget" else {"evaluator_seed": int(pt)}
+        plan, summary, run_id = run_table(name, scale=scale, dataset=dataset, jobs=jobs,
+                                          progress=progress, seeds=seeds, retrain=retrain, **kw)
+        runs.append((pt, plan, summary, run_id))
+    record = build_record(axis, runs)
+    write_record(record)
+    return record
+
+
+def build_record(axis: str, runs: list[tuple[Any, Any, dict, str]]) -> dict:
+    """The sweep record from (point, plan, summary, run id) per point (module docstring)."""
+    plan0 = runs[0][1]
+    spec = plan0.spec
+    cells: dict[str, dict[str, list]] = {}
+    claims: dict[str, dict[str, list]] = {}
+    for i, (_, _, summary, _) in enumerate(runs):
+        for row, cols in summary.get("cells", {}).items():
+            for col, c in cols.items():
+                slot = cells.setdefault(row, {}).setdefault(col, [None] * len(runs))
+                slot[i] = {"mean": c.get("mean"), "ci": c.get("bootstrap_percentile"),
+                           "n": c.get("n")}
+        for cl in summary.get("claims", []):
+            slot = claims.setdefault(cl["id"], {"verdict": [None] * len(runs),
+                                                "probability": [None] * len(runs),
+                                                "posterior_verdict": [None] * len(runs)})
+            slot["verdict"][i] = cl.get("verdict")
+            slot["probability"][i] = cl.get("probability")
+            slot["posterior_verdict"][i] = cl.get("posterior_verdict", cl.get("verdict"))
+    for cid, c in claims.items():
+        vs = [v or "not evaluated" for v in c["verdict"]]
+        if axis == "budget":
+            c["along_budget"] = classify_budget(vs)
+        else:
+            c["under_evaluators"] = ("holds under all" if len(set(vs)) == 1
+                                     else "depends on the evaluator")
+    if axis == "evaluator_seed":
+        for row, cols in cells.items():
+            for col, pts in cols.items():
+                means = [p["mean"] for p in pts if p and p.get("mean") is not None]
+                if len(means) >= 2:
+                    cols[col] = {"points": pts, "range": max(means) - min(means),
+                                 "sd": statistics.stdev(means)}
+                else:
+                    cols[col] = {"points": pts, "range": None, "sd": None}
+    budgets = [s.get("budgets", {}) for _, _, s, _ in runs]
+    return {"schema": SWEEP_SCHEMA, "table": spec.id, "spec_version": spec.version,
+            "scale": plan0.scale.name, "dataset": plan0.dataset, "axis": axis,
+            "points": [p for p, *_ in runs], "runs": [r for *_, r in runs],
+            "retrain": plan0.retrain, "replicates": len(plan0.seeds),
+            "cells": cells, "claims": claims, "budgets": budgets,
+            "claim_text": {cl.id: _text(spec, cl) for cl in spec.claims},
+            "row_labels": {r.id: r.label for r in spec.rows}}
+
+
+def _text(spec, cl) -> str:
+    from repro.engine.tables import _claim_text
+
+    return _claim_text(spec, cl)
+
+
+def write_record(record: dict) -> Path:
+    """``REPRO_HOME/sweeps/<first run id>-<axis>/sweep.json`` (atomic)."""
+    from repro.paths import repro_home
+    from repro.store.atomic import atomic_write_bytes
+
+    d = repro_home() / "sweeps" / f"{record['runs'][0]}-{record['axis']}"
+    d.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(d / "sweep.json", json.dumps(record, indent=1, sort_keys=True).encode())
+    record["path"] = str(d)
+    return d
+
+
+def _fmt(x) -> str:
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "-"
+    return f"{x:.2e}" if x != 0 and (abs(x) >= 1e4 or abs(x) < 1e-3) else f"{x:.3f}"
+
+
+def _point_label(axis: str, p) -> str:
+    return f"×{p:g}" if axis == "budget" else f"seed {p}"
+
+
+def render_sweep(record: dict, fmt: str = "md") -> str:
+    """The sweep as Markdown (``md``) or plain text (``term``): cells against the axis, then
+    each claim's verdict per point with its class (module docstring), then the budgets."""
+    axis = record["axis"]
+    heads = [_point_label(axis, p) for p in record["points"]]
+    extra = ["range", "sd"] if axis == "evaluator_seed" else []
+    lines = [f"{record['table']}: sweep over "
+             f"{'training budget (epochs × factor)' if axis == 'budget' else 'evaluator seed'} "
+             f"at scale {record['scale']} on {record['dataset']} "
+             f"({record['replicates']} replicates per point; runs {', '.join(record['runs'])})", ""]
+    lines.append("| row | column | " + " | ".join(heads + extra) + " |")
+    lines.append("|" + "---|" * (2 + len(heads) + len(extra)))
+    for row, cols in record["cells"].items():
+        for col, val in sorted(cols.items()):
+            pts = val["points"] if isinstance(val, dict) and "points" in val else val
+            cellv = []
+            for p in pts:
+                if not p or p.get("mean") is None:
+                    cellv.append("-")
+                    continue
+                ci = p.get("ci")
+                cellv.append(_fmt(p["mean"]) + (f" [{_fmt(ci[0])}, {_fmt(ci[1])}]"
+                                                if ci and None not in ci else ""))
+            if extra:
+                cellv += [_fmt(val.get("range")), _fmt(val.get("sd"))]
+            lines.append(f"| {row} | {col} | " + " | ".join(cellv) + " |")
+    lines += ["", "| claim | " + " | ".join(heads) + " | " +
+              ("along budget" if axis == "budget" else "under evaluators") + " |",
+              "|" + "---|" * (2 + len(heads))]
+    for cid, c in record["claims"].items():
+        vs = []
+        for v, p in zip(c["verdict"], c["probability"]):
+            vs.append((v or "not evaluated") + ("" if p is None else f" (P = {p:.3f})"))
+        cls = c.get("along_budget") or c.get("under_evaluators")
+        lines.append(f"| {cid}: {record['claim_text'].get(cid, '')} | " + " | ".join(vs)
+                     + f" | {cls} |")
+    if axis == "budget":
+        lines += ["", "Budget against the paper's schedule on this data, per point:"]
+        for p, b in zip(record["points"], record["budgets"]):
+            from repro.engine.evidence import budget_text
+
+            seen: dict[str, str] = {}
+            for x in (b or {}).values():
+                if x is not None:
+                    seen.setdefault(x["method"], budget_text(x))
+            lines.append(f"- {_point_label(axis, p)}: " + (", ".join(seen.values()) or "-"))
+    return "\n".join(lines) + "\n"

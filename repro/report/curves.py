@@ -1,0 +1,92 @@
+"""Learning curves as plain text: :func:`format_learning_curve`.
+
+A train job's ``training.json`` (:func:`repro.engine.steps.read_training`, schema 2) holds one
+history record per epoch: the means over the epoch's batches of the loss terms the method
+logs, ``batches`` (optimiser steps), the same terms on the held-out validation clips with a
+``val_`` prefix (:mod:`repro.train.validation`) and, for MarioNet, whether scheduled sampling
+was active (``ss_active``: the share of the epoch's batches where it was) and its mixing share
+``xi`` (the mean over the epoch's batches, 0 on a batch without scheduled sampling).  ``repro runs show`` prints these lines; docs may reuse them.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+#: columns shown when a record has them, in order: (history key, header, format)
+COLUMNS: tuple[tuple[str, str, str], ...] = (
+    ("loss", "loss", ".4g"),
+    ("val_loss", "val_loss", ".4g"),
+    ("ss_active", "ss_active", ".2f"),
+    ("xi", "xi", ".3f"),
+)
+
+
+def _num(v: Any, fmt: str) -> str:
+    if v is None:
+        return "—"
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        return str(v)
+    if not math.isfinite(x):
+        return str(x)
+    return format(x, fmt)
+
+
+def curve_epochs(n: int, max_rows: int = 25) -> list[int]:
+    """Positions of the history records shown: all when ``n <= max_rows``, else every k-th
+    one (k the smallest step that fits) plus the last, at most ``max_rows`` in all."""
+    if n <= max_rows:
+        return list(range(n))
+    k = math.ceil((n - 1) / max(max_rows - 1, 1))
+    rows = list(range(0, n - 1, k))
+    return rows + [n - 1]
+
+
+def summary_line(training: dict) -> str:
+    """One line: epochs, optimiser steps, batch size, train / validation items, seconds."""
+    history = training.get("history") or []
+    epochs = training.get("epochs")
+    if epochs is None and history:
+        epochs = len(history)
+    steps = training.get("steps")
+    if steps is None and history and all("batches" in h for h in history):
+        steps = sum(int(h["batches"]) for h in history)
+    parts = [f"epochs {'—' if epochs is None else epochs}",
+             f"steps {'—' if steps is None else steps}"]
+    if training.get("batch_size") is not None:
+        parts.append(f"batch {training['batch_size']}")
+    n_train, n_val = training.get("n_train"), training.get("n_validation")
+    if n_train is not None or n_val is not None:
+        frac = training.get("validation_fraction")
+        parts.append(f"items {'—' if n_train is None else n_train} train / "
+                     f"{'—' if n_val is None else n_val} validation"
+                     + ("" if frac is None else f" (fraction {float(frac):g})"))
+    secs = training.get("seconds")
+    parts.append(f"{_num(secs, '.1f')} s")
+    if training.get("resumed_from") is not None:
+        parts.append(f"resumed at epoch {training['resumed_from']}")
+    return ", ".join(parts)
+
+
+def format_learning_curve(training: dict, *, max_rows: int = 25) -> list[str]:
+    """Text lines of one training's learning curve: a table of epoch, ``loss``, ``val_loss``
+    and, when logged (MarioNet), ``ss_active`` and ``xi`` — every epoch, or every k-th plus the
+    last when there are more than ``max_rows`` — then :func:`summary_line`.  A training without
+    epochs (a method that only indexes its items) gives one line saying so, then the summary."""
+    history = [h for h in (training.get("history") or []) if isinstance(h, dict)]
+    if not history:
+        return ["no epochs (nothing trained)", summary_line(training)]
+    cols = [(k, head, fmt) for k, head, fmt in COLUMNS if any(k in h for h in history)]
+    header = ["epoch"] + [head for _, head, _ in cols]
+    rows = []
+    for i in curve_epochs(len(history), max_rows):
+        h = history[i]
+        rows.append([str(h.get("epoch", i))] + [_num(h.get(k), fmt) for k, _, fmt in cols])
+    widths = [max(len(r[j]) for r in [header] + rows) for j in range(len(header))]
+    fmt_row = lambda r: "  ".join(c.rjust(w) for c, w in zip(r, widths))  # noqa: E731
+    return [fmt_row(header)] + [fmt_row(r) for r in rows] + [summary_line(training)]
+
+
+__all__ = ["format_learning_curve", "summary_line", "curve_epochs", "COLUMNS"]
