@@ -28,6 +28,8 @@ MODES = {
     "repro run marionette/table1 --scale quick": "slow",
     "repro show marionette/table1 --format md": "fast",
     "repro rescore marionette/table1": "slow",
+    "repro sweep marionette/table1 --budget 0.5,1,2,4": "slow",
+    "repro runs show latest": "slow",
     "repro runs ls": "fast",
     "repro cache verify": "fast",
     "repro spec check": "fast",

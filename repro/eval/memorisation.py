@@ -9,12 +9,15 @@ columns let a reviewer see that, on every single-action table:
   evaluator's feature space (the features FID uses), to the nearest *training* action;
 - ``nn_train_joint``: the same in joint space: each action's first ``W`` frames (``W`` = the
   evaluator's window), normalised at its own first frame (Neural Marionette's normalisation,
-  :func:`repro.motion.canon.marionette_normalize` with anchor 0: that pose at the origin facing
-  +Z), the distance being the root-mean-square per-joint distance in metres over the
+  :func:`repro.motion.canon.marionette_normalize` with anchor 0: that frame's root at the origin
+  facing +Z, as the items' own normalisation removes the 3-D root position; the pose itself,
+  crouched or standing, is kept relative to the root), the distance being the root-mean-square per-joint distance in metres over the
   generated action's valid frames (:func:`repro.metrics.memorisation.masked_nearest_rms`), so a
-  copy of a training action scores 0 whatever its duration or where it was placed;
+  copy of a training action scores 0 whatever its duration or where it was placed (only the
+  first window is compared: a copy of a training action's later part is not caught);
 - ``precision``, ``recall``, ``density``, ``coverage`` of the generated features against the
-  real test features (Kynkäänniemi et al. 2019; Naeem et al. 2020; k = ``prdc_k``).
+  real test features, each real action once (Kynkäänniemi et al. 2019; Naeem et al. 2020;
+  k = ``prdc_k``, 5 as Naeem et al.; Kynkäänniemi et al. used 3).
 
 The "Real" row gets the two nearest-training distances of the real test actions: the level
 of a generator that generalises as well as fresh data does.  A copier sits near 0 on both;
@@ -37,6 +40,8 @@ def action_windows(motion, lengths: torch.Tensor, window: int) -> tuple[np.ndarr
     frame), and the valid counts ``min(length, W)``."""
     from repro.motion.canon import marionette_normalize
 
+    # 3-D translation as the items' own normalisation (D = the anchor's root position): the
+    # generators place actions relative to the previous pose's root, height included
     norm, _ = marionette_normalize(motion, anchor=0)
     pts = norm.joints()
     lens = lengths.long().clamp(min=1)

@@ -366,7 +366,9 @@ class MultiAction(Protocol):
             out[f"pose_gap@{i + 1}"] = float(pg[:, i].mean())
             out[f"vel_gap@{i + 1}"] = float(vg[:, i].mean())
         if self.params.memorisation:
-            real = self._scored(items.subset(ts.actions.reshape(-1)).real(), S, L)
+            # each real test action once: the test set draws positions with replacement, and a
+            # repeated real sample would shrink its own k-NN ball (to 0 from k+1 copies on)
+            real = items.subset(np.unique(self._scored_rows(ts.actions.reshape(-1), S, L))).real()
             real_feats, _ = self._encode(evaluator, real,
                                          derive_seed(0, MultiAction.id, "fid-reference"))
             out.update(self._harness(self._scored(generated, S, L),
