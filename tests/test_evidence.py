@@ -8,7 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from repro.engine.evidence import (NOT_REPRODUCED_BUDGET, NOT_REPRODUCED_SAMPLING, budget_text,
+from repro.engine.evidence import (NOT_REPRODUCED_BUDGET, NOT_REPRODUCED_REDUCED,
+                                   NOT_REPRODUCED_SAMPLING, NOT_REPRODUCED_UNKNOWN, budget_text,
                                    claim_evidence, qualified_verdict, scale_epochs,
                                    training_budget)
 from repro.engine.tables import build_plan, summarise
@@ -103,21 +104,39 @@ def test_a_chain_that_does_not_mix_gives_inconclusive_in_a_table():
     rng = np.random.default_rng(1)
     per_row = {r: {"fid": list((80.0 if r == "marionet" else 100.0)
                                + 1e-5 * rng.normal(size=10))} for r in ROWS}
-    c = _claim(summarise(plan, _values(spec, per_row)), "fid_best")
+    for r in ROWS:  # multimod 10^6 sds apart too: the "within" claim must not read a P
+        per_row[r]["multimod"] = list((2.0 if r == "marionet" else 3.0)
+                                      + 1e-7 * rng.normal(size=10))
+    s = summarise(plan, _values(spec, per_row))
+    c = _claim(s, "fid_best")
     assert c["verdict"] == "inconclusive" and "did not mix" in c["reason"]
+    assert c["probability"] is None  # a chain that did not mix gives no P
+    w = _claim(s, "multimod_close_to_mann")
+    assert w["verdict"] == "inconclusive" and "did not mix" in w["reason"]
 
 
 def test_budget_fraction_from_the_record_and_from_the_config():
     cfg = {"epochs": 10, "batch_size": 30}
-    b = training_budget("marionet", cfg, {"history": [{"batches": 40}]})
-    # paper: 1,000 epochs at batch 30 on the same 1,200 samples
+    rec = {"history": [{"batches": 40}] * 10, "n_train": 1190}
+    b = training_budget("marionet", cfg, rec)
+    # paper: 1,000 epochs at batch 30 on the same 1,190 items (40 batches an epoch)
     assert b["steps"] == 400 and b["paper_steps"] == 40_000 and b["fraction"] == pytest.approx(0.01)
+    assert not b["assumed"] and "supp. Sec. 3" in b["schedule"]
     assert training_budget("marionet", cfg, None)["fraction"] == pytest.approx(0.01)
-    assert "1%" in budget_text(b) or "1.0%" in budget_text(b)
+    assert budget_text(b) == "marionet 1% (400 of 40,000 steps)"
     assert training_budget("nearest_clip", {"match_frames": None}, None) is None
-    # MANN: the paper's batch 32 and 150 epochs
-    m = training_budget("mann", {"epochs": 15, "batch_size": 256}, {"history": [{"batches": 10}]})
-    assert m["paper_steps"] == 150 * 80 and m["steps"] == 150
+    # MANN (drops the last partial batch): samples = batches × batch; the paper's batch 32 and
+    # 150 epochs; an assumed schedule is marked
+    m = training_budget("mann", {"epochs": 15, "batch_size": 256},
+                        {"history": [{"batches": 10}] * 15, "n_train": 300})
+    assert m["paper_steps"] == 150 * 80 and m["steps"] == 150 and m["assumed"]
+    assert budget_text(m, short=True) == "mann 1.2%*"
+    # Action2Motion's schedule is 50,000 iterations
+    a = training_budget("a2m", {"epochs": 12, "batch_size": 64},
+                        {"history": [{"batches": 35}] * 12, "n_train": 2200})
+    assert a["paper_steps"] == 50_000 and a["steps"] == 420
+    # just under the budget never prints as 100 %
+    assert "<100%" in budget_text({**b, "fraction": 0.997, "steps": None})
 
 
 def test_qualified_verdicts_and_epoch_scaling():
@@ -130,12 +149,25 @@ def test_qualified_verdicts_and_epoch_scaling():
     none = claim_evidence(rows=["real", "nearest_clip"], budgets={}, retrain=False,
                           replicates=3, evaluators=[])
     assert qualified_verdict("contradicted", none) == "contradicted"  # nothing trained
+    full = {"method": "m", "fraction": 1.0, "epochs": 10, "paper_epochs": 10}
+    for scale, retrain, want in (("paper", True, "contradicted"),
+                                 ("paper", False, NOT_REPRODUCED_SAMPLING),
+                                 ("medium", True, NOT_REPRODUCED_REDUCED)):
+        ev = claim_evidence(rows=["a"], budgets={"a": full}, retrain=retrain, replicates=3,
+                            evaluators=[], scale=scale)
+        assert qualified_verdict("contradicted", ev) == want, (scale, retrain)
+    unknown = claim_evidence(rows=["a", "b"], budgets={"a": full, "b": {**full, "fraction": None}},
+                             retrain=True, replicates=3, evaluators=[], scale="paper")
+    assert qualified_verdict("contradicted", unknown) == NOT_REPRODUCED_UNKNOWN
     cfg = {"epochs": 20, "ss_activate_epoch": 5, "ss_accomplish_epoch": 15, "lr": 1e-3}
     assert scale_epochs(cfg, 1) == cfg
     half = scale_epochs(cfg, 0.5)
-    assert half == {"epochs": 10, "ss_activate_epoch": 2, "ss_accomplish_epoch": 8, "lr": 1e-3} \
-        or half == {"epochs": 10, "ss_activate_epoch": 3, "ss_accomplish_epoch": 8, "lr": 1e-3}
+    assert half == {"epochs": 10, "ss_activate_epoch": 3, "ss_accomplish_epoch": 8, "lr": 1e-3}
     assert scale_epochs({"epochs": 1}, 0.1)["epochs"] == 1
+    # the warm-up survives a small factor; a one-cycle restart schedule stays one cycle
+    assert scale_epochs(cfg, 0.1)["ss_activate_epoch"] == 1
+    assert scale_epochs({"epochs": 15, "restart_period": 15}, 0.5) == {"epochs": 8,
+                                                                       "restart_period": 8}
 
 
 def test_every_render_format_prints_the_evidence():
@@ -167,3 +199,20 @@ def test_uncertain_paper_cells_are_marked():
     assert "1?" in md and "uncertain in the PDF extraction" in md
     assert next(r for r in view.rows if r.id == "real").cells["nn_train_joint"].reported \
         == "not in paper"
+
+
+def test_a_record_without_evidence_says_so():
+    """A summary recorded before verdicts carried their evidence is shown with a line saying
+    the evidence was not recorded, never as a bare verdict."""
+    from repro.engine.tables import NO_EVIDENCE, make_view
+    from repro.report import render
+
+    spec, plan = _plan("quick")
+    s = summarise(plan, _table1_values(spec, marionet_fid=4.0))
+    for c in s["claims"]:
+        c.pop("evidence", None)
+        c["verdict"] = c.pop("posterior_verdict")
+    view = make_view(spec, s["rows"], s, [], "bandai2-mini")
+    fid = next(c for c in view.claims if c.id == "fid_best")
+    assert fid.verdict == "contradicted" and fid.evidence == NO_EVIDENCE
+    assert "decided by: not recorded" in render(view, "md")

@@ -268,9 +268,10 @@ def _synthetic_training(n_epochs, marionet=True):
 
 def test_format_learning_curve_short_and_long():
     lines = format_learning_curve(_synthetic_training(4))
-    assert lines[0].split() == ["epoch", "loss", "val_loss", "ss_active", "xi"]
+    assert lines[0].split() == ["epoch", "loss", "val_loss", "ss_active", "xi|active"]
     assert len(lines) == 4 + 2
-    assert lines[1].split() == ["0", "1", "1.2", "0.00", "0.000"]
+    # ξ where scheduled sampling is off is not a number to show
+    assert lines[1].split() == ["0", "1", "1.2", "0.00", "—"]
     assert "kl" not in lines[0]  # other terms stay in training.json
     assert lines[-1] == ("epochs 4, steps 12, batch 30, items 95 train / 5 validation "
                          "(fraction 0.05), 12.3 s")
@@ -281,6 +282,10 @@ def test_format_learning_curve_short_and_long():
     epochs = [int(r.split()[0]) for r in body]
     assert epochs[0] == 0 and epochs[-1] == 99 and epochs == sorted(set(epochs))
     assert body[-1].split()[3:] == ["1.00", "1.000"]
+    # the logged ξ averages over all batches; shown: ξ on the active ones
+    half = _synthetic_training(12)
+    half["history"][11].update(ss_active=0.5, xi=0.2)
+    assert format_learning_curve(half)[12].split()[3:] == ["0.50", "0.400"]
 
     plain = format_learning_curve(_synthetic_training(3, marionet=False))
     assert plain[0].split() == ["epoch", "loss", "val_loss"]

@@ -33,7 +33,7 @@ def _scale(name: str, dataset: str | None):
 
 
 def _footer(plan, evaluators: dict[str, Any], run_id: str | None,
-            budgets: dict | None = None) -> list[str]:
+            budgets: dict | None = None, trainings: list | None = None) -> list[str]:
     from repro.engine.evidence import budget_text
     from repro.stats.intervals import INTERVAL_DESCRIPTIONS
 
@@ -63,6 +63,13 @@ def _footer(plan, evaluators: dict[str, Any], run_id: str | None,
         lines.append(f"Training budget: {factor}against the paper's schedule on this data: "
                      + (", ".join(seen.values()) or "no trained row") + ". A claim contradicted "
                      "below the paper's budget reads 'not reproduced at this budget'.")
+    held = sorted({(t["training"].get("n_train"), t["training"].get("n_validation"))
+                   for t in trainings or [] if (t.get("training") or {}).get("n_validation")})
+    if held:
+        counts = ", ".join(f"{a} of {a + b}" for a, b in held)
+        lines.append(f"Validation: the models trained on {counts} training items; the rest "
+                     "(a per-class share of the training clips, the scale's "
+                     "validation_fraction) only draws their learning curves (repro runs show).")
     for desc in evaluators.values():
         lines.append(f"Evaluator: {desc}")
     for b in plan.bands:
@@ -187,7 +194,7 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
             rec.write_trainings(trainings)
             summary = summarise(p, values, trainings)
             summary["evaluators"] = ev
-            summary["footer"] = _footer(p, ev, rec.run_id, summary.get("budgets"))
+            summary["footer"] = _footer(p, ev, rec.run_id, summary.get("budgets"), trainings)
             summary["counts"] = counts
             rec.write_summary(summary)
             rec.finish()

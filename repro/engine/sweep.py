@@ -5,14 +5,18 @@ Two axes:
 
 - ``budget``: every method's epoch counts × a factor (:func:`repro.engine.evidence.scale_epochs`;
   scheduled-sampling epochs and warm-restart periods scale with them).  The evaluators and the
-  test items do not change, so a cell's movement is the models'.  Each claim's verdicts along
-  the factors are classed **stable** (one verdict throughout), **converging** (the verdict
-  changes once and keeps its last value at the largest budgets, e.g. inconclusive →
-  supported) or **flipping** (it changes more than once).
-- ``evaluator_seed``: the same trained models and samples, scored by evaluators trained with
-  other seeds (the protocol's evaluator architecture and data; only its seed differs).  Each
-  cell gets its spread across evaluators (range and sd of the per-evaluator means); each
-  claim either **holds under all** evaluators (one verdict) or **depends on the evaluator**.
+  test items do not change, so a cell's movement is the models'.  Each claim's posterior
+  verdicts (the sampler's, before the budget qualifies them) along the factors are classed
+  **stable** (one verdict throughout), **converging** (the verdict changes once and keeps its
+  last value at the largest budgets, e.g. inconclusive → supported) or **flipping** (it
+  changes more than once).
+- ``evaluator_seed``: the same trained models, scored by evaluators trained with other seeds
+  (the protocol's evaluator architecture and data; only its seed differs).  On the
+  single-action tables the samples are the same too; on the multi-action ones the evaluator
+  also picks the test set (candidate confidence) and drives Action Revision, so there a
+  cell's spread mixes the evaluator with the test set.  Each cell gets its spread across
+  evaluators (range and sd of the per-evaluator means); each claim either **holds under all**
+  evaluators (one verdict) or **depends on the evaluator**.
 
 Each point is an ordinary run (its own run record; cached jobs are reused: the ×1 point and the
 seed-0 point are the plain run), and the sweep writes ``sweep.json`` (schema 1) with the run
@@ -96,7 +100,10 @@ def build_record(axis: str, runs: list[tuple[Any, Any, dict, str]]) -> dict:
             slot["probability"][i] = cl.get("probability")
             slot["posterior_verdict"][i] = cl.get("posterior_verdict", cl.get("verdict"))
     for cid, c in claims.items():
-        vs = [v or "not evaluated" for v in c["verdict"]]
+        # classed on the sampler's verdicts: the printed ones are qualified by the budget
+        # itself ("not reproduced at this budget" turns into another wording at ×1 of the
+        # paper's), which would look like movement where the evidence did not move
+        vs = [v or "not evaluated" for v in c["posterior_verdict"]]
         if axis == "budget":
             c["along_budget"] = classify_budget(vs)
         else:
@@ -180,8 +187,11 @@ def render_sweep(record: dict, fmt: str = "md") -> str:
               "|" + "---|" * (2 + len(heads))]
     for cid, c in record["claims"].items():
         vs = []
-        for v, p in zip(c["verdict"], c["probability"]):
-            vs.append((v or "not evaluated") + ("" if p is None else f" (P = {p:.3f})"))
+        for v, pv, p in zip(c["verdict"], c["posterior_verdict"], c["probability"]):
+            shown = v or "not evaluated"
+            if pv and pv != shown:
+                shown += f" (posterior: {pv})"
+            vs.append(shown + ("" if p is None else f", P = {p:.3f}"))
         cls = c.get("along_budget") or c.get("under_evaluators")
         lines.append(f"| {cid}: {record['claim_text'].get(cid, '')} | " + " | ".join(vs)
                      + f" | {cls} |")

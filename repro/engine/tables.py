@@ -454,7 +454,8 @@ def with_evidence(plan: TablePlan, cl, claim: dict, budgets: dict) -> dict:
             if t and t not in evs:
                 evs.append(t)
     ev = claim_evidence(rows=list(cl.involved_rows()), budgets=budgets, retrain=plan.retrain,
-                        replicates=len(plan.seeds), evaluators=evs)
+                        replicates=len(plan.seeds), evaluators=evs,
+                        scale=getattr(plan.scale, "name", None))
     out = {**claim, "evidence": ev, "posterior_verdict": claim["verdict"]}
     out["verdict"] = qualified_verdict(claim["verdict"], ev)
     return out
@@ -536,11 +537,16 @@ def _pairs_on(spec, cl, col: str, key: str, cells, seed: int = 0):
                 pairs.append((math.nan, "supported" if holds else "contradicted",
                               tag(hi.reason)))
                 continue
+            if hi.reason or lo.reason:  # a chain that did not mix (or no spread to learn)
+                pairs.append((math.nan, "inconclusive", tag(hi.reason or lo.reason)))
+                continue
             p = 1.0 - hi.probability - lo.probability
-            pairs.append((p, vd(p), tag(hi.reason or lo.reason)))
+            pairs.append((p, vd(p), None))
         else:
             res = claim_probability(va, vb, d, delta if cl.kind == "gap" else 0.0, seed=seed)
-            pairs.append((res.probability, res.verdict, tag(res.reason)))
+            # a chain that did not mix shows no P (its P is not evidence)
+            p = math.nan if res.verdict == "inconclusive" and res.reason else res.probability
+            pairs.append((p, res.verdict, tag(res.reason)))
     return pairs
 
 
@@ -558,9 +564,13 @@ def _conjunction(base: dict, pairs: list, lead: str | None = None, notes=()) -> 
     else:
         verdict = "inconclusive"
     finite = [p for p in ps if p is not None and math.isfinite(p)]
+    # a comparison that could not be evaluated (a chain that did not mix, a single replicate)
+    # leaves the joint probability unknown: no P for the conjunction
+    unknown = any(v == "inconclusive" and (p is None or not math.isfinite(p)) for p, v, _ in pairs)
     reasons = sorted({r for _, _, r in pairs if r} | set(notes))
     reason = "; ".join(([lead] if lead else []) + reasons) or None
-    return {**base, "verdict": verdict, "probability": min(finite) if finite else None,
+    return {**base, "verdict": verdict,
+            "probability": min(finite) if finite and not unknown else None,
             "pairwise": ps, "reason": reason}
 
 
@@ -644,8 +654,20 @@ def _claim_views(spec, summary: dict | None) -> list[ClaimView]:
                                 None if got is None else got.get("probability"),
                                 "not evaluated" if got is None else got["verdict"],
                                 None if got is None else got.get("reason"),
-                                None if got is None else (got.get("evidence") or {}).get("text")))
+                                None if got is None else _evidence_text(got)))
     return claims
+
+
+#: what a claim of a run recorded before verdicts carried their evidence says instead
+NO_EVIDENCE = ("not recorded: a run made before verdicts carried their evidence (budget far "
+               "below the paper's unless its footer says otherwise); rerun to get it")
+
+
+def _evidence_text(claim: dict) -> str | None:
+    if claim.get("verdict") == "not evaluated":
+        return None
+    ev = claim.get("evidence")
+    return ev.get("text") if ev else NO_EVIDENCE
 
 
 def _standin(dataset: str | None) -> str | None:

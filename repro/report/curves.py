@@ -5,7 +5,9 @@ history record per epoch: the means over the epoch's batches of the loss terms t
 logs, ``batches`` (optimiser steps), the same terms on the held-out validation clips with a
 ``val_`` prefix (:mod:`repro.train.validation`) and, for MarioNet, whether scheduled sampling
 was active (``ss_active``: the share of the epoch's batches where it was) and its mixing share
-``xi`` (the mean over the epoch's batches, 0 on a batch without scheduled sampling).  ``repro runs show`` prints these lines; docs may reuse them.
+``xi`` (the mean over the epoch's batches, 0 on a batch without scheduled sampling; shown as
+``xi|active`` = ξ on the active batches).  ``repro runs show`` prints these lines; docs may
+reuse them.
 """
 
 from __future__ import annotations
@@ -17,9 +19,26 @@ from typing import Any
 COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("loss", "loss", ".4g"),
     ("val_loss", "val_loss", ".4g"),
+    # MarioNet: ``loss`` changes meaning when scheduled sampling switches on (λ1·first pass +
+    # λ2·second pass); the first pass's reconstruction and the joint error are comparable
+    # across epochs, on training and held-out clips
+    ("rec1", "rec1", ".4g"),
+    ("val_rec1", "val_rec1", ".4g"),
+    ("mpjpe", "mpjpe", ".4g"),
+    ("val_mpjpe", "val_mpjpe", ".4g"),
     ("ss_active", "ss_active", ".2f"),
-    ("xi", "xi", ".3f"),
+    ("xi_active", "xi|active", ".3f"),
 )
+
+
+def _derived(h: dict) -> dict:
+    """``xi_active``: the mixing share ξ on the batches where scheduled sampling was on (the
+    logged ``xi`` averages ξ with 0 over the batches where it was off)."""
+    out = dict(h)
+    a = h.get("ss_active")
+    if a is not None and "xi" in h:
+        out["xi_active"] = float(h["xi"]) / float(a) if float(a) > 0 else None
+    return out
 
 
 def _num(v: Any, fmt: str) -> str:
@@ -72,10 +91,11 @@ def summary_line(training: dict) -> str:
 
 def format_learning_curve(training: dict, *, max_rows: int = 25) -> list[str]:
     """Text lines of one training's learning curve: a table of epoch, ``loss``, ``val_loss``
-    and, when logged (MarioNet), ``ss_active`` and ``xi`` — every epoch, or every k-th plus the
+    and, when logged (MarioNet), ``rec1``, ``mpjpe`` (each also on the held-out clips),
+    ``ss_active`` and ξ where active — every epoch, or every k-th plus the
     last when there are more than ``max_rows`` — then :func:`summary_line`.  A training without
     epochs (a method that only indexes its items) gives one line saying so, then the summary."""
-    history = [h for h in (training.get("history") or []) if isinstance(h, dict)]
+    history = [_derived(h) for h in (training.get("history") or []) if isinstance(h, dict)]
     if not history:
         return ["no epochs (nothing trained)", summary_line(training)]
     cols = [(k, head, fmt) for k, head, fmt in COLUMNS if any(k in h for h in history)]
