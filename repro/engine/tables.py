@@ -375,8 +375,16 @@ def collect_trainings(plan: TablePlan, reports: dict) -> list[dict]:
                 if job.key() in seen:
                     continue
                 seen.add(job.key())
+                rec = None
+                try:  # the graph's object, or (a run whose measures were all cached never
+                    # loads its trainings) the store's
+                    obj = report.object(job)
+                except Exception:
+                    from repro.store.objects import Store
+
+                    obj = Store().get(job.key())
                 try:
-                    rec = json.loads(report.object(job).read_text("training.json"))
+                    rec = json.loads(obj.read_text("training.json")) if obj is not None else None
                 except Exception:  # a training without a record (older store object)
                     rec = None
                 out.append({"row": rp.row_id, "method": job.config["method"], "seed": job.seed,
