@@ -1,11 +1,14 @@
 """The committed results (docs/results.md): the medium-scale run records of every Neural
-Marionette spec under docs/results/medium/ (context from composed sequences), the baselines made
-from them (tables/baselines/medium/) and the tables the page prints all agree, so the page cannot
-drift from the records nor the records be edited.  The quick records under docs/results/quick/
-are CI's baselines (tables/baselines/quick/).  The earlier records, made when an item's context
-came from its own clip (docs/results/*-same-clip/, and the cross-host rerun of those,
-docs/results/medium-rerun/), are kept as history: each is consistent with its own raw values
-and still printed on the page."""
+Marionette spec under docs/results/medium/ (context from composed sequences, verdicts with their
+evidence, harness columns, learning curves), the baselines made from them
+(tables/baselines/medium/) and the tables the page prints all agree, so the page cannot drift
+from the records nor the records be edited.  The quick records under docs/results/quick/ are
+CI's baselines (tables/baselines/quick/).  The sweeps (docs/results/sweeps/) are printed as
+their records render, and their points are ordinary run records.  The earlier records (before
+verdicts carried their evidence: docs/results/*-pre-evidence/; before the context came from
+sequences: docs/results/*-same-clip/ and the cross-host rerun docs/results/medium-rerun/) are
+kept as history: each is consistent with its own raw values; the page describes them without
+re-printing their bare verdicts."""
 
 from __future__ import annotations
 
@@ -31,6 +34,9 @@ QUICK = _records("quick")
 OLD = _records("medium-same-clip")
 OLD_QUICK = _records("quick-same-clip")
 RERUN = _records("medium-rerun")
+PRE = _records("medium-pre-evidence") + _records("quick-pre-evidence")
+SWEEPS = sorted(p for p in (RESULTS / "sweeps").iterdir() if (p / "sweep.json").is_file()) \
+    if (RESULTS / "sweeps").is_dir() else []
 MARIONETTE = {f"marionette/{t}" for t in
               ("table1", "table2", "table3", "table4", "table5", "fig8", "fig10")}
 
@@ -84,21 +90,97 @@ def test_same_clip_records_are_their_values(path):
     _cells_are_their_values(path, summary, 5)
 
 
+@pytest.mark.parametrize("path", PRE, ids=[p.parent.name + "/" + p.name for p in PRE])
+def test_pre_evidence_records_are_their_values(path):
+    rj, summary = _run(path)
+    assert rj["status"] == "FINISHED"
+    assert not any("evidence" in c for c in summary["claims"])
+    _cells_are_their_values(path, summary, {"medium": 5, "quick": 3}[rj["scale"]])
+
+
+def test_current_records_carry_evidence_curves_and_harness_columns():
+    """Issue 11's done-when on the records: every evaluated claim has its evidence line; the
+    trained models' learning curves are recorded; Tables 1 and 2 have the harness columns, and
+    the nearest-clip copier sits at (near) zero nearest-training distance in joint space."""
+    for path in RUNS + QUICK:
+        rj, summary = _run(path)
+        for c in summary["claims"]:
+            if c["verdict"] != "not evaluated":
+                assert c["evidence"]["text"].startswith("variance:"), (rj["table"], c["id"])
+        trainings = json.loads((path / "trainings.json").read_text())["trainings"]
+        for t in trainings:
+            if t["method"] != "nearest_clip":
+                hist = t["training"]["history"]
+                assert hist and all("loss" in h and "batches" in h for h in hist)
+                assert all("val_loss" in h for h in hist), (rj["table"], t["row"])
+                if t["method"] == "marionet":
+                    assert all("ss_active" in h and "xi" in h for h in hist)
+        if rj["table"] in ("marionette/table1", "marionette/table2"):
+            cells = summary["cells"]
+            for row, cols in cells.items():
+                for m in ("nn_train_feat", "nn_train_joint", "precision", "recall", "density",
+                          "coverage"):
+                    if row != "real":
+                        assert m in cols, (rj["table"], row, m)
+            if rj["table"] == "marionette/table1":
+                assert cells["nearest_clip"]["nn_train_joint"]["mean"] < 1e-5
+                assert cells["real"]["nn_train_joint"]["mean"] > 0.05
+
+
 def test_results_page_prints_the_records(tmp_path, monkeypatch):
     from repro.engine.runner import table_view
     from repro.report import render
 
+    from repro.engine.sweep import render_sweep
+    from repro.report.curves import format_learning_curve
+
     home = tmp_path / "home"
-    for p in RUNS + QUICK + OLD + OLD_QUICK + RERUN:
+    for p in RUNS + QUICK:
         shutil.copytree(p, home / "runs" / p.name)
     monkeypatch.setenv("REPRO_HOME", str(home))
     page = [ln.rstrip() for ln in (repo_root() / "docs" / "results.md").read_text().splitlines()]
     text = "\n".join(page)
-    for p in RUNS + QUICK + OLD + OLD_QUICK + RERUN:
+    for p in RUNS + QUICK:
         rj, _ = _run(p)
         md = render(table_view(rj["table"], scale=rj["scale"], run=rj["run_id"]), "md")
         block = "\n".join(ln.rstrip() for ln in md.strip().splitlines())
         assert block in text, f"docs/results.md does not show run {rj['run_id']} as rendered"
+    # the medium models' learning curves (Tables 1, 2 and 4 train every model of the page)
+    for p in RUNS:
+        if _run(p)[0]["table"] in ("marionette/table1", "marionette/table2", "marionette/table4"):
+            for t in json.loads((p / "trainings.json").read_text())["trainings"]:
+                if (t["training"] or {}).get("history"):
+                    curve = "\n".join(ln.rstrip() for ln in format_learning_curve(t["training"]))
+                    assert curve in text, f"learning curve of {t['row']} missing"
+    for d in SWEEPS:
+        rec = json.loads((d / "sweep.json").read_text())
+        block = "\n".join(ln.rstrip() for ln in render_sweep(rec, "md").strip().splitlines())
+        assert block in text, f"docs/results.md does not show sweep {d.name} as rendered"
+    # no bare verdict: every claim line on the page carries what decided it
+    for ln in page:
+        if ln.startswith("- ") and any(ln[2:].startswith(v) for v in
+                                       ("SUPPORTED", "CONTRADICTED", "NOT REPRODUCED")):
+            assert "[decided by: variance:" in ln, ln
+
+
+@pytest.mark.parametrize("path", SWEEPS, ids=[p.name for p in SWEEPS])
+def test_sweep_records_are_their_runs(path):
+    """A sweep's cells and verdicts are those of the point runs recorded beside it."""
+    rec = json.loads((path / "sweep.json").read_text())
+    runs = {p.name: p for p in path.iterdir() if (p / "summary.json").is_file()}
+    assert sorted(runs) == sorted(rec["runs"])
+    for i, run_id in enumerate(rec["runs"]):
+        rj, summary = _run(runs[run_id])
+        assert rj["table"] == rec["table"] and rj["scale"] == rec["scale"]
+        key = "budget" if rec["axis"] == "budget" else "evaluator_seed"
+        assert rj["config"][key] == rec["points"][i]
+        for row, cols in summary["cells"].items():
+            for col, cell in cols.items():
+                got = rec["cells"][row][col]
+                got = got["points"] if isinstance(got, dict) and "points" in got else got
+                assert got[i]["mean"] == cell["mean"]
+        for c in summary["claims"]:
+            assert rec["claims"][c["id"]]["verdict"][i] == c["verdict"]
 
 
 def test_quick_records_one_model_per_row_and_retrain():
