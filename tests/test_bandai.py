@@ -404,3 +404,23 @@ def test_write_cache_keeps_a_published_cache_when_not_replacing(tmp_path):
     write_cache(tmp_path, "key", arrays(3), meta)  # replace=True (prepare --force)
     assert np.load(p / "root.npy")[0] == 3
     assert sorted(q.name for q in tmp_path.iterdir()) == ["key"]
+
+
+
+def test_folder_source_refuses_symlinks_out_of_the_folder(tmp_path):
+    """Issue 16 (part): a folder source no longer follows a .bvh symlink out of the folder;
+    prepare ends with one error naming the link, and the fingerprint ignores it."""
+    import pytest
+
+    from repro.data.bandai import source_fingerprint
+    from repro.errors import DataError
+
+    write_toy(tmp_path / "src")
+    before = source_fingerprint(tmp_path / "src")
+    outside = tmp_path / "elsewhere.bvh"
+    outside.write_bytes(next((tmp_path / "src" / "data").glob("*.bvh")).read_bytes())
+    link = tmp_path / "src" / "data" / "zz_walk_active_9.bvh"
+    link.symlink_to(outside)
+    assert source_fingerprint(tmp_path / "src") == before
+    with pytest.raises(DataError, match="symbolic link that leads out"):
+        prepare_bandai2(tmp_path / "src", card=TOY_CARD, workers=0)

@@ -191,6 +191,15 @@ def test_crlf_and_tabs_are_accepted():
     assert b.n_frames == 3 and b.names[2] == "Head Top"
 
 
+def test_cr_only_line_ends_read_like_lf():
+    """Issue 16 (part): classic-Mac CR-only files used to end in "unexpected 'MOTION' after
+    the hierarchy"; they now parse exactly like the LF file."""
+    lf = parse_bvh(mixed_text())
+    cr = parse_bvh(mixed_text().replace("\n", "\r"))
+    assert cr.names == lf.names and cr.n_frames == lf.n_frames
+    np.testing.assert_array_equal(cr.motion, lf.motion)
+
+
 # ----------------------------------------------------------------------------- malformed
 def _lines(text: str) -> list[str]:
     return text.split("\n")

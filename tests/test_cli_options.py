@@ -89,3 +89,22 @@ def test_a_deeply_nested_spec_is_one_clear_error(tmp_path):
                            capture_output=True, text=True)
         assert r.returncode == 2, r.stderr
         assert "Traceback" not in r.stderr and name in r.stderr and "nested" in r.stderr
+
+
+
+def test_a_spec_file_may_not_claim_a_registered_table_id(tmp_path):
+    """Issue 16 (part): a copy of a registered spec outside tables/ would have become that
+    table's newest run; it is refused with one line, exit 2."""
+    import shutil
+    import subprocess
+    import sys
+
+    from repro.paths import tables_root
+
+    copy = tmp_path / "mine.toml"
+    shutil.copy(tables_root() / "marionette" / "table1.toml", copy)
+    r = subprocess.run([sys.executable, "-m", "cli.main", "plan", str(copy)],
+                       capture_output=True, text=True, env={"REPRO_HOME": str(tmp_path / "h"),
+                                                            "PATH": "/usr/bin:/bin"})
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "claims the id 'marionette/table1'" in r.stderr

@@ -146,9 +146,18 @@ def source_fingerprint(source: Path) -> str:
     from repro.keys import content_key, sha256_file
 
     if source.is_dir():
-        files = sorted(p for p in source.rglob("*") if p.is_file())
+        files = sorted(p for p in source.rglob("*") if _inside(p, source) and p.is_file())
         return content_key([[p.relative_to(source).as_posix(), sha256_file(p)] for p in files])
     return sha256_file(source)
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    """False for a symlink (file or folder on the way) that leads out of ``folder``: a folder
+    source reads only what lies inside it (such a link is refused by :func:`_iter_source`)."""
+    try:
+        return path.resolve().is_relative_to(folder.resolve())
+    except OSError:
+        return False
 
 
 def dataset_fingerprint(source_fp: str, card: DatasetCard, split: dict) -> str:
@@ -183,6 +192,9 @@ def _iter_source(source: Path) -> Iterator[tuple[str, str, bytes]]:
     if source.is_dir():
         for p in sorted(source.rglob("*")):
             k = kind_of(p.name)
+            if k and not _inside(p, source):
+                raise DataError("a symbolic link that leads out of the source folder (copy "
+                                "the file in instead)", p)
             if k and p.is_file():
                 yield k, str(p), p.read_bytes()
         return

@@ -353,6 +353,8 @@ def parse_bvh(data: bytes | str, source: str | Path = "<bvh>") -> Bvh:
     raw = data.encode("utf-8") if isinstance(data, str) else bytes(data)
     if raw.startswith(b"\xef\xbb\xbf"):
         raw = raw[3:]
+    if b"\r" in raw:  # CR LF (Windows) and CR-only (classic Mac) line ends read as LF
+        raw = raw.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
     m = _MOTION_RE.search(raw)
     head = _text(raw if m is None else raw[: m.start()])
     motion_line = head.count("\n") + 1

@@ -21,9 +21,20 @@ from repro.errors import ConfigError, ReproError
 
 
 def _spec(name: str):
+    """The spec ``name`` names; a spec file outside ``tables/`` may not claim the id of a
+    registered table (its runs would become that table's newest run)."""
     from repro.specs.load import find_spec
 
-    return find_spec(name)
+    spec = find_spec(name)
+    p = Path(name)
+    if p.suffix == ".toml" and p.is_file():
+        from repro.paths import tables_root
+
+        own = tables_root() / f"{spec.id}.toml"
+        if own.is_file() and own.resolve() != p.resolve():
+            raise ConfigError(f"{name}: spec file claims the id {spec.id!r} of "
+                              f"tables/{spec.id}.toml; give it an id of its own")
+    return spec
 
 
 def _scale(name: str, dataset: str | None):
