@@ -268,7 +268,7 @@ def test_harness_columns_expose_a_copier_and_spare_real_data(setup):
     assert copier["nn_train_feat"] >= 0.0 and real["nn_train_feat"] > 0.0
     train = setup["train"].subset(np.arange(0, len(setup["train"]), 7))
     feats, _ = proto._encode(ev, train.real(), 0)
-    exact = proto.memorisation(train.real(), feats, train, ev, clips, seed=0)
+    exact = proto.memorisation(train.real(), feats, ev, clips, seed=0)
     assert exact["nn_train_feat"] < 1e-4 and exact["nn_train_joint"] < 1e-6
     for k in ("precision", "recall", "density", "coverage"):
         assert 0.0 <= copier[k] <= (1.0 + 1.0 / proto.params.prdc_k if k == "density" else 1.0)

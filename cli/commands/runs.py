@@ -97,21 +97,6 @@ def _console():
     return Console()
 
 
-#: written by the runner into a run folder: every trained model's training.json
-TRAININGS = "trainings.json"
-
-
-def _trainings(path) -> list[dict[str, Any]]:
-    """The ``trainings`` of a run folder's ``trainings.json`` (empty when it has none)."""
-    f = path / TRAININGS
-    if not f.is_file():
-        return []
-    try:
-        return list(json.loads(f.read_text()).get("trainings") or [])
-    except (ValueError, AttributeError):
-        return []
-
-
 # ---------------------------------------------------------------------- commands
 def _ls(args: argparse.Namespace) -> int:
     from repro.store.index import RunIndex
@@ -141,11 +126,11 @@ def _ls(args: argparse.Namespace) -> int:
 
 
 def _show(args: argparse.Namespace) -> int:
-    from repro.store.runs import load_run, resolve_run
+    from repro.store.runs import load_run, read_trainings, resolve_run
 
     rec = load_run(resolve_run(args.run))
     run = rec.run
-    trainings = _trainings(rec.path)
+    trainings = read_trainings(rec.path)
     if args.json:
         print(json.dumps({"run": run, "values": rec.values, "summary": rec.summary,
                           "trainings": trainings}, indent=2))

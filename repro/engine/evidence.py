@@ -157,6 +157,16 @@ def budget_text(b: dict, short: bool = False) -> str:
     return s
 
 
+def budgets_text(budgets, short: bool = False) -> str:
+    """One :func:`budget_text` per method (the first row of each; rows that train as the same
+    method share its budget), comma-separated; ``budgets``: budget dicts or None (skipped)."""
+    seen: dict[str, str] = {}
+    for b in budgets:
+        if b is not None:
+            seen.setdefault(b["method"], budget_text(b, short=short))
+    return ", ".join(seen.values())
+
+
 def claim_evidence(*, rows: list[str], budgets: dict[str, dict | None], retrain: bool,
                    replicates: int, evaluators: list[str], scale: str | None = None) -> dict:
     """The evidence of a claim over ``rows``: variance, budgets of the trained rows involved
@@ -171,11 +181,9 @@ def claim_evidence(*, rows: list[str], budgets: dict[str, dict | None], retrain:
                     "(no training-seed variance)")
     parts = [f"variance: {variance}"]
     if trained:
-        seen: dict[str, str] = {}
-        for b in trained.values():
-            seen.setdefault(b["method"], budget_text(b, short=True))
         assumed = any(b.get("assumed") for b in trained.values())
-        parts.append("budget vs the paper's schedule on this data: " + ", ".join(seen.values())
+        parts.append("budget vs the paper's schedule on this data: "
+                     + budgets_text(trained.values(), short=True)
                      + (" (*: schedule assumed, the paper states none)" if assumed else ""))
     else:
         parts.append("budget: no trained row involved")
@@ -206,7 +214,7 @@ def qualified_verdict(verdict: str, evidence: dict) -> str:
     return CONTRADICTED
 
 
-def evaluator_text(ev: dict | None, key: str | None = None) -> str | None:
+def evaluator_text(ev: dict | None) -> str | None:
     if not ev:
         return None
     s = f"{ev.get('kind')} seed {ev.get('seed', 0)}"

@@ -45,7 +45,7 @@ def _scale(name: str, dataset: str | None):
 
 def _footer(plan, evaluators: dict[str, Any], run_id: str | None,
             budgets: dict | None = None, trainings: list | None = None) -> list[str]:
-    from repro.engine.evidence import budget_text
+    from repro.engine.evidence import budgets_text
     from repro.stats.intervals import INTERVAL_DESCRIPTIONS
 
     spec, scale = plan.spec, plan.scale
@@ -65,14 +65,11 @@ def _footer(plan, evaluators: dict[str, Any], run_id: str | None,
     lines.append(f"Paper ±: {INTERVAL_DESCRIPTIONS.get(spec.interval, spec.interval)}; ours: mean "
                  f"±(paper convention) [95% percentile bootstrap over replicates, "
                  f"B={scale.bootstrap_resamples}].")
-    trained = [b for b in (budgets or {}).values() if b is not None]
-    if trained or plan.budget != 1.0:
-        seen: dict[str, str] = {}
-        for b in trained:
-            seen.setdefault(b["method"], budget_text(b))
+    text = budgets_text((budgets or {}).values())
+    if text or plan.budget != 1.0:
         factor = "" if plan.budget == 1.0 else f"epochs × {plan.budget:g} of the profile's; "
         lines.append(f"Training budget: {factor}against the paper's schedule on this data: "
-                     + (", ".join(seen.values()) or "no trained row") + ". A claim contradicted "
+                     + (text or "no trained row") + ". A claim contradicted "
                      "below the paper's budget reads 'not reproduced at this budget'.")
     held = sorted({(t["training"].get("n_train"), t["training"].get("n_validation"))
                    for t in trainings or [] if (t.get("training") or {}).get("n_validation")})

@@ -197,12 +197,8 @@ def render_sweep(record: dict, fmt: str = "md") -> str:
                      + f" | {cls} |")
     if axis == "budget":
         lines += ["", "Budget against the paper's schedule on this data, per point:"]
-        for p, b in zip(record["points"], record["budgets"]):
-            from repro.engine.evidence import budget_text
+        from repro.engine.evidence import budgets_text
 
-            seen: dict[str, str] = {}
-            for x in (b or {}).values():
-                if x is not None:
-                    seen.setdefault(x["method"], budget_text(x))
-            lines.append(f"- {_point_label(axis, p)}: " + (", ".join(seen.values()) or "-"))
+        for p, b in zip(record["points"], record["budgets"]):
+            lines.append(f"- {_point_label(axis, p)}: " + (budgets_text((b or {}).values()) or "-"))
     return "\n".join(lines) + "\n"

@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-import json
 from functools import partial
 from typing import Any
 
@@ -364,6 +363,9 @@ def collect_trainings(plan: TablePlan, reports: dict) -> list[dict]:
     """Every training of the run, once per (row, training job): the row, the method trained,
     its seed, job key, the resolved method config and the training record the job wrote
     (``training.json``: per-epoch loss terms, validation error, steps; None if absent)."""
+    from repro.engine.steps import read_training
+    from repro.store.objects import Store
+
     out = []
     for rp in plan.rows:
         report = reports.get(rp.row_id)
@@ -375,18 +377,12 @@ def collect_trainings(plan: TablePlan, reports: dict) -> list[dict]:
                 if job.key() in seen:
                     continue
                 seen.add(job.key())
-                rec = None
                 try:  # the graph's object, or (a run whose measures were all cached never
                     # loads its trainings) the store's
                     obj = report.object(job)
-                except Exception:
-                    from repro.store.objects import Store
-
+                except KeyError:
                     obj = Store().get(job.key())
-                try:
-                    rec = json.loads(obj.read_text("training.json")) if obj is not None else None
-                except Exception:  # a training without a record (older store object)
-                    rec = None
+                rec = read_training(obj) if obj is not None else None
                 out.append({"row": rp.row_id, "method": job.config["method"], "seed": job.seed,
                             "job": job.key(), "method_config": job.config["method_config"],
                             "training": rec})
@@ -458,7 +454,7 @@ def with_evidence(plan: TablePlan, cl, claim: dict, budgets: dict) -> dict:
     evs = []
     for b in plan.bands:
         if b.implemented and set(b.columns) & set(cl.column):
-            t = evaluator_text(b.evaluator, b.evaluator_key)
+            t = evaluator_text(b.evaluator)
             if t and t not in evs:
                 evs.append(t)
     ev = claim_evidence(rows=list(cl.involved_rows()), budgets=budgets, retrain=plan.retrain,

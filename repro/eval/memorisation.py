@@ -51,6 +51,20 @@ def action_windows(motion, lengths: torch.Tensor, window: int) -> tuple[np.ndarr
     return out.detach().cpu().double().numpy(), torch.clamp(lens, max=window).numpy()
 
 
+def harness_columns(protocol, motion, feats, evaluator, clipset, *, bank_seed: int,
+                    real_feats=None) -> dict[str, float]:
+    """The harness columns of ``motion`` (a GeneratedItems whose evaluator features are
+    ``feats``) against ``protocol``'s training items (the actions its models train on, encoded
+    by the protocol's own ``_encode`` with ``bank_seed``): what :func:`harness_values`
+    computes, with ``protocol.params.prdc_k``."""
+    bank = protocol.train_items(clipset)
+    real = bank.real()
+    bank_feats, _ = protocol._encode(evaluator, real, bank_seed)
+    return harness_values(motion.motion, motion.lengths, feats, real.motion, bank.lengths,
+                          bank_feats, evaluator.settings.window, real_feats,
+                          k=protocol.params.prdc_k)
+
+
 def harness_values(gen_motion, gen_lengths, gen_feats, bank_motion, bank_lengths, bank_feats,
                    window: int, real_feats=None, k: int = 5) -> dict[str, float]:
     """The harness columns (module docstring): generated actions (``gen_motion`` world-frame

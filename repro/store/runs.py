@@ -400,6 +400,18 @@ def read_run_json(path: Path) -> dict[str, Any]:
     return data
 
 
+def read_trainings(path: Path) -> list[dict[str, Any]]:
+    """The ``trainings`` a run folder's ``trainings.json`` holds (:meth:`RunRecorder.
+    write_trainings`; empty when the run has none or the file is unreadable)."""
+    f = Path(path) / TRAININGS_JSON
+    if not f.is_file():
+        return []
+    try:
+        return list(json.loads(f.read_text(encoding="utf-8")).get("trainings") or [])
+    except (ValueError, AttributeError):
+        return []
+
+
 def read_values(path: Path) -> list[dict[str, Any]]:
     f = Path(path) / VALUES_JSONL
     if not f.exists():

@@ -391,13 +391,10 @@ class MultiAction(Protocol):
                  real_feats=None) -> dict[str, float]:
         """The harness columns (:mod:`repro.eval.memorisation`) of the scored actions against
         the training items (the same ones the models train on)."""
-        from repro.eval.memorisation import harness_values
+        from repro.eval.memorisation import harness_columns
 
-        bank = self.train_items(clipset)
-        bank_feats, _ = self._encode(evaluator, bank.real(), derive_seed(seed, self.id, "bank"))
-        return harness_values(motion.motion, motion.lengths, feats, bank.real().motion,
-                              bank.lengths, bank_feats, evaluator.settings.window, real_feats,
-                              k=self.params.prdc_k)
+        return harness_columns(self, motion, feats, evaluator, clipset, real_feats=real_feats,
+                               bank_seed=derive_seed(seed, self.id, "bank"))
 
     def _quality(self, feats: np.ndarray, correct: np.ndarray, reference) -> dict[str, float]:
         """acc, fid, action_qr, motion_qr (from ``score_from_action`` on) and per index."""

@@ -321,19 +321,15 @@ class SingleAction(Protocol):
                                                                       "fid-reference"))
         return feats
 
-    def memorisation(self, motion: GeneratedItems, feats, items: ActionItems, evaluator,
-                     clipset, *, seed: int, real_feats=None) -> dict[str, float]:
-        """The harness columns of :mod:`repro.eval.memorisation` for ``motion`` (the actions
-        of ``items``, features ``feats``): nearest-training distances against the protocol's
-        training items, and, with ``real_feats``, precision/recall/density/coverage."""
-        from repro.eval.memorisation import harness_values
+    def memorisation(self, motion: GeneratedItems, feats, evaluator, clipset, *, seed: int,
+                     real_feats=None) -> dict[str, float]:
+        """The harness columns of :mod:`repro.eval.memorisation` for ``motion`` (features
+        ``feats``): nearest-training distances against the protocol's training items, and,
+        with ``real_feats``, precision/recall/density/coverage."""
+        from repro.eval.memorisation import harness_columns
 
-        bank = self.train_items(clipset)
-        bank_feats, _ = self._encode(evaluator, bank.real(),
-                                     derive_seed(seed, "single_action", "train-bank"))
-        return harness_values(motion.motion, motion.lengths, feats, bank.real().motion,
-                              bank.lengths, bank_feats, evaluator.settings.window, real_feats,
-                              k=self.params.prdc_k)
+        return harness_columns(self, motion, feats, evaluator, clipset, real_feats=real_feats,
+                               bank_seed=derive_seed(seed, "single_action", "train-bank"))
 
     def measure(self, generated: GeneratedItems, items: ActionItems, evaluator, *, seed: int,
                 reference=None, clipset=None) -> dict[str, float]:
@@ -359,7 +355,7 @@ class SingleAction(Protocol):
         out = self._feature_metrics(feats, logits, items.labels.numpy(), items.n_classes,
                                     derive_seed(seed, "single_action", "pairs"), reference)
         if harness:
-            out.update(self.memorisation(generated, feats, items, evaluator, clipset, seed=seed,
+            out.update(self.memorisation(generated, feats, evaluator, clipset, seed=seed,
                                          real_feats=real_feats))
         traj = self.trajectory_error(generated, items)
         if traj is not None:
@@ -434,7 +430,7 @@ class SingleAction(Protocol):
         out = self._feature_metrics(feats, logits, sub.labels.numpy(), items.n_classes,
                                     derive_seed(rs, "pairs"), reference)
         if clipset is not None and self.params.memorisation:  # the level of fresh real data
-            mem = self.memorisation(sub.real(), feats, sub, evaluator, clipset, seed=rs)
+            mem = self.memorisation(sub.real(), feats, evaluator, clipset, seed=rs)
             out.update({k: mem[k] for k in ("nn_train_feat", "nn_train_joint")})
         return out
 
