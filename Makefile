@@ -7,7 +7,7 @@ SCALE ?= quick
 JOBS ?= 1
 RUNFLAGS ?=
 
-.PHONY: setup test test-all bench help
+.PHONY: setup test test-all bench help browser
 
 help:
 	@echo "make setup     create .venv (torch==2.13.0 CPU build first, then repro with dev extras)"
@@ -22,6 +22,14 @@ setup:
 
 test:
 	$(PY) -m pytest -q
+
+# Debian's chromium (+ the DejaVu fonts the report and its golden screenshot use) for the
+# report's browser tests and `repro report --check`; needs root; skipped when already there.
+browser:
+	@command -v chromium >/dev/null 2>&1 && fc-list 2>/dev/null | grep -q DejaVuSans || \
+	  { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -q \
+	    chromium fonts-dejavu-core >/dev/null; }
+	@chromium --version
 
 test-all:
 	$(PY) -m pytest -q -m ''
@@ -57,9 +65,13 @@ tables:
 # CI regression: rerun the built tables at the quick scale and compare with committed baselines.
 # Jobs compute with the profile's `threads` (1), so CI_JOBS changes the wall time, not a number.
 CI_JOBS ?= 2
+# ... and writes their HTML report, opened in headless chromium when it is installed
+REPORT_DIR ?= report
+CHECK_FLAG := $(if $(shell command -v chromium 2>/dev/null),--check,)
 ci-tables:
 	$(REPRO) run $(CI_TABLES) --scale quick --quiet --jobs $(CI_JOBS)
 	$(REPRO) verify $(CI_TABLES) --scale quick --baseline tables/baselines/quick
+	$(REPRO) report $(CI_TABLES) --scale quick --out $(REPORT_DIR) $(CHECK_FLAG)
 
 # Rewrite the committed baselines of $(SCALE) (default quick) from the newest runs of the built
 # tables (review the diff before committing); `make verify` compares without writing.  The medium

@@ -21,6 +21,7 @@ COMMAND_MODULES = (
     "data",     # data prepare | info | bundle
     "eval",     # eval classifier | real
     "runs",     # runs ls | show | diff | reindex
+    "report",   # report | strips | export
     "cache",    # cache ls | verify | gc
     "doctor",
 )

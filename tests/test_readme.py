@@ -21,6 +21,10 @@ from repro.paths import find_bandai_archive, repo_root
 MODES = {
     "make setup": "ci",
     "make test": "ci",
+    "make browser": "ci",
+    "repro report marionette/table1 --out report/": "slow",
+    "repro strips marionette/table1 --out strips/": "slow",
+    "repro export marionette/table1 --row marionet --item 0 --out export/": "slow",
     "make table3": "slow",
     "make table1": "slow",
     "repro list": "fast",

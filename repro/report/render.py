@@ -173,7 +173,15 @@ def _render_latex(view: TableView) -> str:
     return "\n".join(out) + "\n"
 
 
-def _render_html(view: TableView) -> str:
+def html_table(view: TableView) -> str:
+    """The HTML table (a figure: its per-column tables) without claims and footer, for pages
+    that lay those out themselves (:mod:`repro.report.html_report`)."""
+    if isinstance(view, FigureView):
+        return _figure_html(view, tail=False)
+    return _render_html(view, tail=False)
+
+
+def _render_html(view: TableView, tail: bool = True) -> str:
     e = html.escape
     out = [f"<h3>{e(_title(view))}</h3>", "<table>", "<tr><th>row</th><th></th>" +
            "".join(f"<th>{e(c.label + _arrow(c.direction, c.label))}</th>" for c in view.columns) + "</tr>"]
@@ -183,7 +191,7 @@ def _render_html(view: TableView) -> str:
         out.append("<tr><td></td><td>ours</td>" + "".join(
             f"<td>{e(ours_text(row.cells.get(c.id, CellView(status=row.status))))}</td>" for c in view.columns) + "</tr>")
     out.append("</table>")
-    return "\n".join(out + _html_tail(view)) + "\n"
+    return "\n".join(out + (_html_tail(view) if tail else [])) + "\n"
 
 
 def _render_json(view: TableView) -> str:
@@ -276,7 +284,7 @@ def _figure_latex(view: FigureView) -> str:
     return "\n".join(out) + "\n"
 
 
-def _figure_html(view: FigureView) -> str:
+def _figure_html(view: FigureView, tail: bool = True) -> str:
     e = html.escape
     xlabel = view.x.label if view.x is not None else "x"
     out = [f"<h3>{e(_title(view))}</h3>", f"<p>{e(view.axis_line())}</p>"]
@@ -288,7 +296,7 @@ def _figure_html(view: FigureView) -> str:
             out.append(f"<tr><td>{e(xs)}</td>" + "".join(
                 f"<td>{e(_figure_cell(r, key))}</td>" for r in view.rows) + "</tr>")
         out.append("</table>")
-    return "\n".join(out + _html_tail(view)) + "\n"
+    return "\n".join(out + (_html_tail(view) if tail else [])) + "\n"
 
 
 def _figure_csv(view: FigureView) -> str:

@@ -1,0 +1,173 @@
+"""Export any motion (a skeleton, a root track and local rotations) as a BVH file.
+
+This is the inverse of the reading path (:mod:`repro.data.bvh` + :mod:`repro.data.bandai`),
+so generated motion can leave the harness for Blender, Maya or MotionBuilder, and an exported
+file reads back through :func:`repro.data.bvh.parse_bvh` to the same pose.
+
+Conventions of the written file:
+
+- **Hierarchy**: the skeleton's tree, joints in the skeleton's (topological) order.  The root
+  joint gets ``CHANNELS 6 Xposition Yposition Zposition`` followed by three rotation channels
+  in ``order``; every other joint gets the three rotation channels only.
+- **Rotations**: Euler angles in degrees, composed *intrinsically in channel order* with
+  column vectors, as the reader interprets them: ``order="ZXY"`` writes ``Zrotation Xrotation
+  Yrotation`` with ``R = Rz·Rx·Ry`` (roma/scipy convention ``"ZXY"``).  The conversion is
+  :func:`repro.motion.rotations.matrix_to_euler` (roma).  ``order`` must be an upper-case
+  permutation of ``XYZ`` (lower case means *extrinsic* in roma/scipy, so it is refused).
+- **Units**: ``units="cm"`` multiplies metres by 100 (Bandai's files are in centimetres),
+  ``units="m"`` keeps metres; this applies to OFFSETs, End Sites and root positions.
+- **Root OFFSET** is written as ``0 0 0``: the root's position lies wholly in its position
+  channels, so readers that *replace* the OFFSET by the channels (ours) and readers that *add*
+  them agree.  The project's forward kinematics ignores the root offset as well.
+- **End Sites**: every leaf joint gets one, continuing the leaf's bone in its own direction at
+  :data:`END_SITE_FRACTION` of its length (a zero offset for a leaf with a zero OFFSET, e.g. a
+  one-joint skeleton).  Viewers need it to draw the last bone; the reader ignores it for FK.
+- **Dummy root**: with ``dummy_root="joint_Root"`` (:data:`repro.data.bandai.DUMMY_ROOT`) an
+  extra ROOT of that name with a zero OFFSET and six all-zero channels (positions + rotations
+  in ``order``) is written above the skeleton's root, as in the Bandai files, so the export is
+  accepted by :func:`repro.data.bandai.convert_clips`.
+- **Joint names** may hold single spaces (our reader joins the words back), but some readers
+  keep only the first word (bvhio does), so names without spaces are the portable choice.
+- **Motion**: ``Frames: T``, ``Frame Time: 1/fps`` (7 significant digits), one line per frame.
+- **Precision**: every number is printed with ``precision`` digits after the point (fixed
+  notation; default 6, i.e. 1e-6 degree and 1e-6 cm).  The text depends only on the input, so
+  the same input gives the same bytes.
+
+Bad input (shapes, non-finite values, matrices that are not rotations, a bad ``order``,
+``units``, ``fps`` or joint name) raises :class:`ValueError` naming the problem.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from repro.data.bvh import Bvh, format_bvh
+
+#: Length of an End Site as a fraction of its leaf joint's own OFFSET (same direction).
+END_SITE_FRACTION = 0.5
+#: Largest tolerated deviation of a rotation matrix from orthonormality (max |RᵀR − I|).
+ROTATION_TOL = 1e-3
+UNITS = {"cm": 100.0, "m": 1.0}
+_POS = ("Xposition", "Yposition", "Zposition")
+_RESERVED = frozenset(("{", "}", "OFFSET", "CHANNELS", "JOINT", "End", "ROOT", "MOTION",
+                       "HIERARCHY"))
+
+
+def _array(x, what: str) -> np.ndarray:
+    """A float64 numpy copy of a numpy array, torch tensor (any device, grad) or sequence."""
+    if hasattr(x, "detach"):
+        x = x.detach().cpu().numpy()
+    try:
+        return np.array(x, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{what} must be a numeric array ({e})") from None
+
+
+def _check_name(name: str, what: str) -> None:
+    if not isinstance(name, str) or not name or name != " ".join(name.split()):
+        raise ValueError(f"{what} {name!r}: must be non-empty, without tabs, newlines, or "
+                         f"leading/trailing/double spaces")
+    if any(tok in _RESERVED for tok in name.split()):
+        raise ValueError(f"{what} {name!r}: contains a BVH keyword or brace")
+
+
+def _validate(skeleton, root, rotmats, fps, order: str, units: str):
+    J = skeleton.n_joints
+    if units not in UNITS:
+        raise ValueError(f"units must be one of {sorted(UNITS)}, got {units!r}")
+    if not (isinstance(order, str) and len(order) == 3 and sorted(order) == ["X", "Y", "Z"]):
+        raise ValueError(f"order must be an upper-case permutation of 'XYZ' (intrinsic, in "
+                         f"channel order), got {order!r}")
+    try:
+        fps = float(fps)
+    except (TypeError, ValueError):
+        raise ValueError(f"fps must be a number, got {fps!r}") from None
+    if not (np.isfinite(fps) and fps > 0):
+        raise ValueError(f"fps must be a positive finite number, got {fps!r}")
+    R = _array(rotmats, "rotmats")
+    t = _array(root, "root")
+    if R.ndim != 4 or R.shape[1:] != (J, 3, 3):
+        raise ValueError(f"rotmats must have shape (T, {J}, 3, 3) for this {J}-joint skeleton, "
+                         f"got {R.shape}")
+    T = R.shape[0]
+    if T < 1:
+        raise ValueError("rotmats has no frames (a BVH clip needs at least one)")
+    if t.shape != (T, 3):
+        raise ValueError(f"root must have shape ({T}, 3) to match rotmats, got {t.shape}")
+    for a, what in ((R, "rotmats"), (t, "root"), (skeleton.offsets, "skeleton offsets")):
+        if not np.isfinite(a).all():
+            bad = tuple(int(i) for i in np.argwhere(~np.isfinite(a))[0])
+            raise ValueError(f"{what} holds a non-finite value (first at index {bad})")
+    dev = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(axis=(-1, -2))
+    det = np.linalg.det(R)
+    bad = (dev > ROTATION_TOL) | (det <= 0)
+    if bad.any():
+        f, j = (int(i) for i in np.argwhere(bad)[0])
+        raise ValueError(f"rotmats[{f}, {j}] (joint {skeleton.names[j]!r}) is not a rotation "
+                         f"matrix: max |RᵀR − I| = {dev[f, j]:.3g}, det = {det[f, j]:.3g}")
+    for n in skeleton.names:
+        _check_name(n, "joint name")
+    return R, t, fps
+
+
+def bvh_text(skeleton, root, rotmats, fps, *, precision: int = 6, **kw) -> str:
+    """BVH text of a motion (:func:`bvh_of`; module docstring for the conventions)."""
+    return format_bvh(bvh_of(skeleton, root, rotmats, fps, precision=precision, **kw), precision)
+
+
+def bvh_of(skeleton, root, rotmats, fps, *, order: str = "ZXY", units: str = "cm",
+           dummy_root: str | None = None, precision: int = 6) -> Bvh:
+    """The :class:`~repro.data.bvh.Bvh` of a motion, numbers rounded to ``precision``
+    (module docstring for the conventions; :func:`repro.data.bvh.bvh_from_motion` is the
+    lower-level builder without these conventions).
+
+    ``skeleton``: :class:`repro.motion.skeleton.Skeleton` (offsets in metres); ``root``: (T, 3)
+    root translation in metres; ``rotmats``: (T, J, 3, 3) local rotation matrices (numpy or
+    torch); ``fps``: frames per second.
+    """
+    from repro.motion.rotations import matrix_to_euler
+
+    R, t, fps = _validate(skeleton, root, rotmats, fps, order, units)
+    if not (isinstance(precision, int) and 0 <= precision <= 17):
+        raise ValueError(f"precision must be an integer from 0 to 17, got {precision!r}")
+    scale = UNITS[units]
+    T, J = R.shape[0], R.shape[1]
+    rot = tuple(f"{a}rotation" for a in order)
+    names, parents = list(skeleton.names), list(skeleton.parents)
+    offsets = np.asarray(skeleton.offsets, np.float64) * scale
+    offsets[0] = 0.0  # the root's position is all in its channels (module docstring)
+    channels = [_POS + rot] + [rot] * (J - 1)
+    angles = matrix_to_euler(R, order, degrees=True).reshape(T, 3 * J)
+    motion = np.concatenate([t * scale, angles], axis=1)
+
+    leaves = sorted(set(range(J)) - set(parents))
+    end_parents = list(leaves)
+    end_offsets = [offsets[j] * END_SITE_FRACTION for j in leaves]
+
+    if dummy_root is not None:
+        _check_name(dummy_root, "dummy_root")
+        if dummy_root in names:
+            raise ValueError(f"dummy_root {dummy_root!r} is already a joint of the skeleton")
+        names = [dummy_root] + names
+        parents = [-1] + [p + 1 for p in parents]
+        offsets = np.concatenate([np.zeros((1, 3)), offsets])
+        channels = [_POS + rot] + channels
+        end_parents = [j + 1 for j in end_parents]
+        motion = np.concatenate([np.zeros((T, 6)), motion], axis=1)
+
+    def clean(a):  # round first so tiny negatives print as 0.000000, not -0.000000
+        return np.round(np.asarray(a, np.float64), precision) + 0.0
+
+    return Bvh(tuple(names), tuple(parents), clean(offsets), tuple(channels), tuple(end_parents),
+               clean(np.reshape(end_offsets, (-1, 3))), 1.0 / fps, clean(motion))
+
+
+def write_bvh(path, skeleton, root, rotmats, fps, *, precision: int = 6, **kw) -> Path:
+    """Write :func:`bvh_of` (same arguments) to ``path`` atomically (temporary file beside
+    it, then rename: :func:`repro.data.bvh.write_bvh`).  Returns the path."""
+    from repro.data.bvh import write_bvh as write_parsed
+
+    return write_parsed(bvh_of(skeleton, root, rotmats, fps, precision=precision, **kw), path,
+                        precision)
