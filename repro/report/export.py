@@ -1,0 +1,128 @@
+"""``repro export``: stored samples out of the harness, as BVH (Blender, Maya, MotionBuilder)
+or as ``.npz`` joint positions.
+
+What is exported is chosen like a table cell narrows down: a table's run (default: the newest
+finished one), optionally one ``row``, one ``replicate`` (default 0; ``all`` for every one),
+one ``item`` (a single-action test item, or a multi-action test sequence; default: all).  One
+file per (row, replicate, item), named ``<row>-r<replicate>-item<i>.bvh`` (``-seq<s>`` for a
+test sequence), plus ``export.json`` saying what each file holds (table, run, band, tag(s),
+frames, seed).
+
+- **single action**: the generated action, its valid frames only (``lengths``), in the world
+  frame the protocol measured it in;
+- **multi action**: the whole generated chain of a test sequence, its actions one after
+  another (each cut to its duration), so the file plays the sequence as the scoring saw it.
+
+A BVH is written on the samples' skeleton (the data set's, :mod:`repro.data.bvh_write`:
+centimetres, ZXY Euler channels); ``dummy_root`` adds the all-zero root the Bandai files carry,
+so an export can be read back as data.  An ``.npz`` holds ``joints`` (T, J, 3) metres,
+``root`` (T, 3), ``rot6d`` (T, J, 6), ``names``, ``parents``, ``fps`` and the same meta.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+
+from repro.errors import ConfigError
+
+FORMATS = ("bvh", "npz")
+
+
+def _pieces(band, g, item: int | None):
+    """(stem suffix, motion slices, meta) of every exported item of one row's samples."""
+    if band.is_sequence:
+        S, L = g.n_sequences, g.n_actions
+        which = range(S) if item is None else [item]
+        for s in which:
+            if not 0 <= s < S:
+                raise ConfigError(f"--item {s}: the test set has sequences 0..{S - 1}")
+            idx = [s * L + j for j in range(L)]
+            lens = [int(g.lengths[i]) for i in idx]
+            tags = [band.items.label_names[int(g.labels[i])] for i in idx]
+            yield f"seq{s}", [(i, n) for i, n in zip(idx, lens)], {
+                "sequence": s, "tags": tags, "frames": lens}
+    else:
+        N = len(g)
+        which = range(N) if item is None else [item]
+        for i in which:
+            if not 0 <= i < N:
+                raise ConfigError(f"--item {i}: the test items are 0..{N - 1}")
+            n = int(g.lengths[i])
+            yield f"item{i}", [(i, n)], {"item": i, "tag": band.items.label_names[int(g.labels[i])],
+                                         "frames": n}
+
+
+def export_samples(rs, out: str | Path, *, row: str | None = None,
+                   replicate: int | str = 0, item: int | None = None, fmt: str = "bvh",
+                   dummy_root: bool = False) -> dict:
+    """Write the chosen samples of a run (:func:`repro.engine.run_samples.run_samples`) into
+    the folder ``out``; returns the ``export.json`` record."""
+    import torch
+
+    from repro.data.bvh_write import write_bvh
+    from repro.store.atomic import atomic_write_bytes
+
+    if fmt not in FORMATS:
+        raise ConfigError(f"unknown export format {fmt!r} (choose from {', '.join(FORMATS)})")
+    rows = [r for b in rs.bands for r in b.rows]
+    if row is not None:
+        ids = sorted({r.row_id for r in rows})
+        if row not in ids:
+            from repro.specs.names import suggest
+
+            raise ConfigError(f"{rs.spec.id} has no generated row {row!r}"
+                              f"{suggest(row, ids)}; rows with samples: {', '.join(ids)}")
+        rows = [r for r in rows if r.row_id == row]
+    if replicate != "all":
+        reps = sorted({r.replicate for r in rows})
+        if int(replicate) not in reps:
+            raise ConfigError(f"--replicate {replicate}: the run has replicates "
+                              f"{', '.join(map(str, reps))}")
+        rows = [r for r in rows if r.replicate == int(replicate)]
+    unavailable = [r for r in rows if not r.available]
+    if unavailable and len(unavailable) == len(rows):
+        raise ConfigError(f"{rs.spec.id} run {rs.run_id}: {unavailable[0].row_id}: "
+                          f"{unavailable[0].reason}")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    multi_band = len({r.band for r in rows}) > 1
+    record = {"schema": 1, "table": rs.spec.id, "run": rs.run_id, "format": fmt, "files": []}
+    for r in rows:
+        if not r.available:
+            record.setdefault("skipped", []).append({"row": r.row_id, "reason": r.reason})
+            continue
+        band = rs.bands[r.band]
+        g = band.load(r)
+        m = g.motion
+        sk = m.skeleton
+        for suffix, parts, meta in _pieces(band, g, item):
+            root = torch.cat([m.root[i, :n] for i, n in parts]).double()
+            rot6d = torch.cat([m.rot6d[i, :n] for i, n in parts])
+            one = m.replace(root=root[None], rot6d=rot6d[None])
+            stem = f"{r.row_id}{f'-band{r.band}' if multi_band else ''}-r{r.replicate}-{suffix}"
+            if fmt == "bvh":
+                from repro.data.bandai import DUMMY_ROOT
+
+                name = f"{stem}.bvh"
+                write_bvh(out / name, sk, root.numpy(), one.rotmats()[0].double().numpy(), m.fps,
+                          dummy_root=DUMMY_ROOT if dummy_root else None)
+            else:
+                name = f"{stem}.npz"
+                buf = io.BytesIO()
+                np.savez_compressed(
+                    buf, joints=one.joints()[0].double().numpy(), root=root.numpy(),
+                    rot6d=rot6d.double().numpy(), names=np.array(sk.names),
+                    parents=np.array(sk.parents, dtype=np.int64), fps=np.float64(m.fps),
+                    meta=np.array(json.dumps({"table": rs.spec.id, "run": rs.run_id,
+                                              "row": r.row_id, **meta}, sort_keys=True)))
+                atomic_write_bytes(out / name, buf.getvalue())
+            record["files"].append({"file": name, "row": r.row_id, "band": r.band,
+                                    "protocol": band.protocol_id, "replicate": r.replicate,
+                                    "seed": r.seed, "fps": m.fps, **meta})
+    atomic_write_bytes(out / "export.json",
+                       (json.dumps(record, indent=1, sort_keys=True) + "\n").encode())
+    return record

@@ -1,0 +1,268 @@
+"""``repro report``: a self-contained HTML report, one page per table, that opens from disk.
+
+``write_report(tables, out)`` writes into ``out``:
+
+- ``index.html``: every registered table with its state (reported in this folder, last run,
+  not run, not implemented), linking the pages written;
+- ``<paper>-<table>.html`` per table: the paper-vs-ours table with intervals (the same view
+  every other format renders, :mod:`repro.report.render`), every claim with its verdict and
+  what decided it, the comparison strips of every row for the same items
+  (:mod:`repro.report.strip_sets`; PNG shown, EXR linked), the plots (a figure's curves with
+  interval bands, a table's cells against the paper's, the learning curves of the run's
+  trainings: :mod:`repro.render.plots`, each beside its data as CSV), and the provenance (run
+  id, code commit, data fingerprint, evaluator fingerprints, scale, machine, packages);
+- ``<paper>-<table>/``: that page's images and data files.
+
+No server, no network: styles are inline, images are relative files.  Each page carries a
+small script that, once loaded, checks that every image decoded and records the result on
+``<body data-images-ok data-images-failed data-script-errors>``; a failure also shows a
+red banner, so a broken report says so to its reader (and the browser test reads it).
+"""
+
+from __future__ import annotations
+
+import html
+import json
+from pathlib import Path
+
+from repro.report.render import html_table
+from repro.report.view import FigureView
+
+E = html.escape
+
+CSS = """
+body{font-family:DejaVu Sans,Helvetica,Arial,sans-serif;margin:24px;color:#222;max-width:1500px}
+h1{font-size:22px;margin:0 0 6px}h2{font-size:18px;margin:26px 0 8px;border-bottom:1px solid #ccc}
+h3{font-size:15px}table{border-collapse:collapse;font-size:12px;margin:8px 0}
+td,th{border:1px solid #ccc;padding:3px 6px;text-align:left;vertical-align:top}
+th{background:#f1f1f1}.standin{background:#fff3cd;border:1px solid #e0c36c;padding:6px 10px}
+.verdict{font-weight:bold}.v-supported{color:#1b7a1b}.v-contradicted{color:#b00020}
+.v-other{color:#8a5a00}.strip img,.plot img{max-width:100%;border:1px solid #ddd}
+.muted{color:#666;font-size:12px}#report-check{display:none;background:#b00020;color:#fff;
+padding:6px 10px}dl{display:grid;grid-template-columns:max-content auto;gap:2px 14px;font-size:12px}
+dt{font-weight:bold}dd{margin:0;word-break:break-all}
+"""
+
+CHECK_JS = """
+window.__reproErrors = 0;
+window.addEventListener('error', function () { window.__reproErrors += 1; }, true);
+window.addEventListener('load', function () {
+  var imgs = document.images, ok = 0, bad = 0;
+  for (var i = 0; i < imgs.length; i++) {
+    if (imgs[i].complete && imgs[i].naturalWidth > 0) { ok += 1; } else { bad += 1; }
+  }
+  document.body.setAttribute('data-images-ok', ok);
+  document.body.setAttribute('data-images-failed', bad);
+  document.body.setAttribute('data-script-errors', window.__reproErrors);
+  if (bad || window.__reproErrors) {
+    var b = document.getElementById('report-check');
+    b.textContent = 'This report is damaged: ' + bad + ' image(s) did not load, '
+      + window.__reproErrors + ' error(s).';
+    b.style.display = 'block';
+  }
+});
+"""
+
+
+def page_name(table_id: str) -> str:
+    return table_id.replace("/", "-") + ".html"
+
+
+def _page(title: str, body: list[str]) -> str:
+    return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
+            f"<title>{E(title)}</title><style>{CSS}</style><script>{CHECK_JS}</script>"
+            "</head><body>\n<div id=\"report-check\"></div>\n" + "\n".join(body)
+            + "\n</body></html>\n")
+
+
+def _verdict_class(v: str) -> str:
+    v = v.lower()
+    if v.startswith("supported"):
+        return "v-supported"
+    if v.startswith("contradicted"):
+        return "v-contradicted"
+    return "v-other"
+
+
+def _claims_html(view) -> list[str]:
+    if not view.claims:
+        return ["<p class=\"muted\">The spec states no claim for this table.</p>"]
+    out = ["<table><tr><th>claim</th><th>verdict</th><th>P</th><th>why / what decided it</th>"
+           "</tr>"]
+    for cl in view.claims:
+        p = "" if cl.probability is None else f"{cl.probability:.3f}"
+        why = " — ".join(x for x in (cl.reason, f"decided by: {cl.evidence}" if cl.evidence
+                                     else None) if x)
+        out.append(f"<tr><td>{E(cl.text)}<div class=\"muted\">{E(cl.source or '')}</div></td>"
+                   f"<td class=\"verdict {_verdict_class(cl.verdict)}\">{E(cl.verdict)}</td>"
+                   f"<td>{E(p)}</td><td>{E(why)}</td></tr>")
+    out.append("</table>")
+    return out
+
+
+def provenance(run_path: Path | None, rj: dict | None, view) -> list[tuple[str, str]]:
+    """(field, value) pairs saying what made the numbers."""
+    if rj is None:
+        return [("run", "none: this table has not been run at this scale")]
+    cfg = rj.get("config") or {}
+    git = rj.get("git") or {}
+    env = rj.get("env") or {}
+    cpu = env.get("cpu") or {}
+    evs = sorted({b.get("evaluator_key") or "" for b in cfg.get("bands", [])} - {""})
+    pk = rj.get("packages") or {}
+    commit = git.get("commit") or "unknown (not a git checkout)"
+    if git.get("dirty"):
+        commit += f" + uncommitted changes (diff sha256 {git.get('diff_sha256')})"
+    return [("run", f"{rj.get('run_id')} ({rj.get('status')}, {rj.get('started')} → "
+                    f"{rj.get('ended')})"),
+            ("command", " ".join(rj.get("command") or [])),
+            ("code commit", commit),
+            ("spec", f"{rj.get('table')} v{(rj.get('spec') or {}).get('version')} "
+                     f"[{((rj.get('spec') or {}).get('hash') or '')[:12]}]"),
+            ("scale", f"{rj.get('scale')}; seeds {cfg.get('seeds')}; retrain "
+                      f"{bool(cfg.get('retrain'))}; budget ×{cfg.get('budget', 1.0)}; "
+                      f"evaluator seed {cfg.get('evaluator_seed', 0)}"),
+            ("data set", f"{rj.get('dataset')} (fingerprint {cfg.get('data_fingerprint')})"
+                         + (" — a stand-in for the paper's data" if view.standin else "")),
+            ("evaluator fingerprints", ", ".join(evs) or "none"),
+            ("machine", f"{env.get('host')}: {cpu.get('model')} ({cpu.get('cpus')} cpus), "
+                        f"{env.get('platform')}, device {env.get('device')}, "
+                        f"{env.get('threads')} threads"),
+            ("packages", ", ".join(f"{k} {v}" for k, v in sorted(pk.items()))),
+            ("run folder", str(run_path) if run_path else "-")]
+
+
+def _run_of(table_id: str, scale: str, dataset: str | None, run: str | None):
+    from repro.engine.runner import _scale, _spec, latest_run
+    from repro.store.runs import read_run_json, resolve_run
+
+    spec = _spec(table_id)
+    if run:
+        path = resolve_run(run)
+    else:
+        sc = _scale(scale, dataset)
+        path = latest_run(spec.id, sc.name, dataset or sc.dataset_for(spec))
+    return (path, read_run_json(path)) if path is not None else (None, None)
+
+
+def table_page(table_id: str, out: Path, *, scale: str = "quick", dataset: str | None = None,
+               run: str | None = None, items: int = 2, strips: bool = True) -> dict:
+    """Write one table's page and its assets; returns what it holds (for the index)."""
+    from repro.engine.run_samples import run_samples
+    from repro.engine.runner import _spec, table_view
+    from repro.render.plots import figure_plot, learning_curve_plot, table_plot
+    from repro.report.strip_sets import write_strips
+    from repro.store.runs import read_trainings
+
+    spec = _spec(table_id)
+    path, rj = _run_of(spec.id, scale, dataset, run)
+    view = table_view(spec.id, scale=scale, dataset=dataset, run=path.name if path else None)
+    name = page_name(spec.id)
+    assets = out / name[:-5]
+    assets.mkdir(parents=True, exist_ok=True)
+    rel = assets.name
+    body = [f"<p><a href=\"index.html\">← all tables</a></p>",
+            f"<h1>{E(spec.id)}: {E(spec.title)}</h1>"]
+    if view.standin:
+        body.append(f"<p class=\"standin\">STAND-IN DATA: {E(view.standin)} — the paper used "
+                    f"{E(spec.paper_dataset)}; absolute values are not comparable, only "
+                    "orderings and gaps.</p>")
+    state = "run " + path.name if path else "not run"
+    if isinstance(view, FigureView) and not (view.x is not None and view.x.values):
+        why = "; ".join(sorted({f"{r.label}: {r.status}" for r in view.rows}))
+        body.append(f"<p class=\"standin\">Not reproduced yet — {E(why)}.</p>")
+        state = "not reproduced yet" if path is None else state
+    body += ["<h2>Paper vs reproduced</h2>", html_table(view), "<h2>Claims</h2>",
+             *_claims_html(view)]
+
+    # plots
+    body.append("<h2>Plots</h2>")
+    plots = []
+    if isinstance(view, FigureView):
+        note = "" if view.x is not None and view.x.values else " (not reproduced yet)"
+        figure_plot(view, assets / "figure.png", data_path=assets / "figure.csv")
+        plots.append(("figure.png", "figure.csv", f"{spec.id} as a plot{note}: our means with "
+                      "interval bands; the paper prints no values for a figure."))
+    else:
+        table_plot(view, assets / "cells.png", data_path=assets / "cells.csv")
+        plots.append(("cells.png", "cells.csv", "our mean and interval per cell; the paper's "
+                      "printed value as a black x"))
+    if path is not None:
+        trainings = read_trainings(path)
+        if trainings:
+            learning_curve_plot(trainings, assets / "curves.png", data_path=assets / "curves.csv")
+            plots.append(("curves.png", "curves.csv", "learning curves of the run's trainings "
+                          "(validation dashed)"))
+    for png, data, cap in plots:
+        body.append(f"<div class=\"plot\"><img src=\"{rel}/{png}\" alt=\"{E(cap)}\">"
+                    f"<p class=\"muted\">{E(cap)} — data: <a href=\"{rel}/{data}\">{data}</a>"
+                    "</p></div>")
+
+    # strips
+    body.append("<h2>Strips: the motions behind the numbers</h2>")
+    n_strips = 0
+    if path is None:
+        body.append("<p class=\"muted\">Not run yet: no samples to draw.</p>")
+    elif not strips:
+        body.append("<p class=\"muted\">Strips were not asked for (--no-strips).</p>")
+    else:
+        rec = write_strips(run_samples(spec.id, run=path), assets, items=items)
+        n_strips = len(rec["strips"])
+        for st in rec["strips"]:
+            f = st["files"]
+            body.append(f"<div class=\"strip\"><h3>{E(st['title'])}</h3>"
+                        f"<img src=\"{rel}/{f['png']}\" alt=\"{E(st['title'])}\">"
+                        f"<p class=\"muted\">Replicate {st['replicate']}; rows: "
+                        f"{E(', '.join(st['rows']))}. Multi-channel OpenEXR (R, G, B, A, Z, "
+                        f"JointIndex): <a href=\"{rel}/{f['exr']}\">{f['exr']}</a></p></div>")
+        for n in rec["notes"]:
+            body.append(f"<p class=\"muted\">No strip: {E(n)}</p>")
+        if not rec["strips"] and not rec["notes"]:
+            body.append("<p class=\"muted\">No row of this table generated samples.</p>")
+
+    body.append("<h2>Provenance</h2><dl>" + "".join(
+        f"<dt>{E(k)}</dt><dd>{E(v)}</dd>" for k, v in provenance(path, rj, view)) + "</dl>")
+    body += [f"<p class=\"muted\">{E(x)}</p>" for x in view.footer]
+    (out / name).write_text(_page(f"{spec.id} — repro report", body), encoding="utf-8")
+    return {"table": spec.id, "page": name, "state": state, "strips": n_strips,
+            "claims": [(c.verdict, c.text) for c in view.claims], "title": spec.title}
+
+
+def write_report(tables: list[str], out: str | Path, *, scale: str = "quick",
+                 dataset: str | None = None, run: str | None = None, items: int = 2,
+                 strips: bool = True) -> Path:
+    """Write the report of ``tables`` into ``out``; returns the index page's path."""
+    from repro.engine.runner import _spec, latest_run
+    from repro.specs.load import load_all
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    ids = list(dict.fromkeys(_spec(t).id for t in tables))
+    done = {t: table_page(t, out, scale=scale, dataset=dataset,
+                          run=run if len(ids) == 1 else None, items=items, strips=strips)
+            for t in ids}
+    rows = []
+    for sid, spec in sorted(load_all().items()):
+        if sid in done:
+            d = done[sid]
+            verdicts = "; ".join(f"{v}" for v, _ in d["claims"]) or "-"
+            rows.append(f"<tr><td><a href=\"{d['page']}\">{E(sid)}</a></td><td>{E(spec.title)}"
+                        f"</td><td>{E(d['state'])}</td><td>{d['strips']}</td>"
+                        f"<td>{E(verdicts)}</td></tr>")
+        else:
+            last = latest_run(sid, scale)
+            st = f"not in this report (last run {last.name})" if last else "not in this report"
+            rows.append(f"<tr><td>{E(sid)}</td><td>{E(spec.title)}</td><td>{E(st)}</td>"
+                        "<td>-</td><td>-</td></tr>")
+    body = ["<h1>repro report</h1>",
+            f"<p class=\"muted\">Scale {E(scale)}; {len(done)} of {len(rows)} tables reported "
+            "here. Each page: the paper's table beside ours, the claims with their verdicts, "
+            "plots, strips of the motions, provenance.</p>",
+            "<table><tr><th>table</th><th>title</th><th>state</th><th>strips</th>"
+            "<th>claim verdicts</th></tr>", *rows, "</table>"]
+    index = out / "index.html"
+    index.write_text(_page("repro report", body), encoding="utf-8")
+    (out / "report.json").write_text(json.dumps({"schema": 1, "scale": scale,
+                                                 "tables": list(done.values())}, indent=1,
+                                                sort_keys=True) + "\n", encoding="utf-8")
+    return index

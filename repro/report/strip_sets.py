@@ -1,0 +1,204 @@
+"""Comparison strips of a run: for a few test items, one band per table row, the real motion on
+top, every row drawn for the *same* item (same tag, context and replicate seed), so the strips
+compare like with like (issue 12; drawing in :mod:`repro.render.strips`).
+
+What a strip shows:
+
+- **single action** (Tables 1, 2, 4-single): the item's initial motion ``P^ini`` (its ``K``
+  context frames, real for every row, a segment of its own called "context") followed by the
+  action: the real test action on top, each row's generated action below.  Key frames are
+  evenly spaced over context and action, plus the first generated frame (the junction).
+- **multi action** (Tables 3-5, Figs 8, 10): one test sequence: the real ``P^ini`` of action 1,
+  then the first ``max_actions`` actions of the chain, each a coloured segment with its tag;
+  every junction (an action's first frame) is a key frame, as are each action's middle frame
+  and the frame before each later junction; the last ``K`` frames of an action are the context
+  the next one was conditioned on (Alg. 1), marked as the next action's transition window.  The real band shows the real test actions at the same
+  test-set positions, each in its own world frame (they were never one take).
+
+Items: single action: ``items`` test items of different tags (a seeded choice, ``seed``);
+multi action: the first ``items`` test sequences (the test set is already a seeded draw).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from repro.errors import DataError
+from repro.seeding import numpy_rng
+
+
+@dataclass
+class Strip:
+    """One strip: what it shows (``meta``) and its panels (top: real)."""
+
+    name: str                 # file stem, e.g. "band0-item3"
+    title: str
+    panels: list              # repro.render.strips.Panel
+    frames: list[int]
+    meta: dict = field(default_factory=dict)
+
+
+def _joints(motion) -> np.ndarray:
+    """(T, J, 3) float32 world joints of a one-item Motion."""
+    return motion.joints()[0].detach().cpu().numpy().astype(np.float32)
+
+
+def _pick_items(labels: np.ndarray, n: int, seed: int) -> list[int]:
+    """``n`` item positions, one per tag as far as tags go: a seeded order of the tags, the
+    first (seeded) item of each."""
+    rng = numpy_rng(seed, "strips", "items")
+    tags = rng.permutation(np.unique(labels))
+    out: list[int] = []
+    round_ = 0
+    while len(out) < min(n, len(labels)):
+        for t in tags:
+            pos = np.flatnonzero(labels == t)
+            order = numpy_rng(seed, "strips", "tag", int(t)).permutation(pos)
+            if round_ < len(order) and len(out) < n:
+                out.append(int(order[round_]))
+        round_ += 1
+    return out
+
+
+def _single_strips(band, rows, n_items: int, replicate: int, key_frames: int,
+                   seed: int) -> list[Strip]:
+    from repro.render.strips import Panel, Segment, key_frame_indices
+
+    items = band.items
+    names = items.label_names
+    K = items.n_init
+    picks = _pick_items(items.labels.numpy(), n_items, seed)
+    init_w = items.initial_world()
+    real = items.real()
+    out = []
+    for i in picks:
+        L = int(items.lengths[i])
+        ctx = _joints(init_w.select(i))
+        tag, nxt = names[int(items.labels[i])], names[int(items.next_labels[i])]
+        segs = [Segment(0, K, "context"), Segment(K, K + L, tag)]
+
+        def panel(label, motion):
+            act = _joints(motion.select(i))[:L]
+            return Panel(label, np.concatenate([ctx, act]), tag=tag, segments=segs,
+                         frame_offset=-K)
+
+        panels = [panel("Real (test action)", real.motion)]
+        shown = []
+        for r in rows:
+            panels.append(panel(r.label, band.load(r).motion))
+            shown.append(r.row_id)
+        frames = key_frame_indices(K + L, key_frames, include=[K - 1, K])
+        out.append(Strip(f"band{band.index}-item{i}",
+                         f"item {i}: {tag} (next: {nxt}), {L} frames after {K} context frames",
+                         panels, frames,
+                         {"band": band.index, "protocol": band.protocol_id, "item": i, "tag": tag,
+                          "next_tag": nxt, "frames": L, "context_frames": K, "rows": shown,
+                          "replicate": replicate}))
+    return out
+
+
+def _sequence_strips(band, rows, n_items: int, replicate: int, max_actions: int) -> list[Strip]:
+    from repro.render.strips import Panel, Segment
+
+    items = band.items
+    ts = band.test_set
+    names = items.label_names
+    K = items.n_init
+    S, L = ts.actions.shape
+    A = min(L, max_actions)
+    init_w = items.initial_world()
+    real = items.real()
+    out = []
+    for s in range(min(n_items, S)):
+        pos = [int(p) for p in ts.actions[s, :A]]
+        lens = [int(items.lengths[p]) for p in pos]
+        tags = [names[int(items.labels[p])] for p in pos]
+        starts = np.concatenate([[K], K + np.cumsum(lens)[:-1]]).astype(int).tolist()
+        segs = [Segment(0, K, "context")] + [
+            Segment(a, a + n, t, transition=None if j == 0 else (a - K, a))
+            for j, (a, n, t) in enumerate(zip(starts, lens, tags))]
+        ctx = _joints(init_w.select(pos[0]))
+        real_j = np.concatenate([ctx] + [_joints(real.motion.select(p))[:n]
+                                         for p, n in zip(pos, lens)])
+        panels = [Panel("Real (test-set actions)", real_j, tag=" > ".join(tags), segments=segs,
+                        frame_offset=-K)]
+        shown = []
+        for r in rows:
+            g = band.load(r)
+            if g.n_sequences != S or g.n_actions != L or g.test_set_key != ts.key():
+                raise DataError(f"row {r.row_id!r}: stored samples are of another test set")
+            acts = [_joints(g.motion.select(s * L + j))[:n] for j, n in enumerate(lens)]
+            panels.append(Panel(r.label, np.concatenate([ctx] + acts), tag=" > ".join(tags),
+                                segments=segs, frame_offset=-K))
+            shown.append(r.row_id)
+        # P₋₁ of action 1, each junction, each action's middle, and the last frame before each
+        # later junction (inside the window the next action is conditioned on)
+        frames = sorted({K - 1, *starts, *[a + n // 2 for a, n in zip(starts, lens)],
+                         *[a - 1 for a in starts[1:]]})
+        out.append(Strip(f"band{band.index}-seq{s}",
+                         f"test sequence {s}: actions 1-{A} of {L} ({' > '.join(tags)})",
+                         panels, frames,
+                         {"band": band.index, "protocol": band.protocol_id, "sequence": s,
+                          "tags": tags, "frames": lens, "context_frames": K, "rows": shown,
+                          "replicate": replicate, "actions_shown": A, "actions": L}))
+    return out
+
+
+def table_strips(rs, *, items: int = 2, replicate: int = 0, key_frames: int = 8,
+                 max_actions: int = 4, seed: int = 0) -> tuple[list[Strip], list[str]]:
+    """The strips of a run (:class:`repro.engine.run_samples.RunSamples`) and notes on rows
+    that have none."""
+    strips: list[Strip] = []
+    notes: list[str] = []
+    for band in rs.bands:
+        rows = [r for r in band.rows if r.replicate == replicate]
+        missing = [r for r in rows if not r.available]
+        for r in missing:
+            notes.append(f"{r.row_id} ({band.protocol_id}): {r.reason}")
+        rows = [r for r in rows if r.available]
+        if not rows:
+            continue
+        if band.is_sequence:
+            strips += _sequence_strips(band, rows, items, replicate, max_actions)
+        else:
+            strips += _single_strips(band, rows, items, replicate, key_frames, seed)
+    return strips, notes
+
+
+def write_strips(rs, out_dir: str | Path, *, formats=("png", "exr"), **kw) -> dict:
+    """Render every strip of the run into ``out_dir`` (``NAME.png``, ``NAME.exr``) and write
+    ``strips.json`` (what each strip shows); returns that record."""
+    from repro.render.exr import write_exr
+    from repro.render.strips import render_strip, save_png
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    strips, notes = table_strips(rs, **kw)
+    sk = None
+    record = {"schema": 1, "table": rs.spec.id, "run": rs.run_id, "notes": notes, "strips": []}
+    for st in strips:
+        if sk is None:
+            sk = rs.bands[st.meta["band"]].items.skeleton
+        img = render_strip(st.panels, sk.parents, sk.names, frames=st.frames,
+                           top_view=True, title=f"{rs.spec.id} | {st.title}")
+        files = {}
+        if "png" in formats:
+            save_png(img, out_dir / f"{st.name}.png")
+            files["png"] = f"{st.name}.png"
+        if "exr" in formats:
+            write_exr(img, out_dir / f"{st.name}.exr")
+            files["exr"] = f"{st.name}.exr"
+        record["strips"].append({"name": st.name, "title": st.title, "frames": st.frames,
+                                 "files": files, **st.meta})
+    from repro.store.atomic import atomic_write_bytes
+
+    atomic_write_bytes(out_dir / "strips.json",
+                       (json.dumps(record, indent=1, sort_keys=True) + "\n").encode())
+    return record
+
+
+__all__ = ["Strip", "table_strips", "write_strips"]
