@@ -33,7 +33,7 @@ from repro.render import (
     render_strip,
     save_png,
 )
-from repro.render.exr import write_exr
+from repro.render.exr import srgb_to_linear, write_exr
 from repro.render.strips import LEFT_RGB, RIGHT_RGB, SEGMENT_PALETTE, side_of
 
 SSIM_THRESHOLD = 0.97
@@ -313,7 +313,7 @@ def test_exr_round_trip(tmp_path):
     assert ch["Z"][r, c] == pytest.approx(img.depth[r, c]) and 0 < ch["Z"][r, c] < 10
     save_png(img, tmp_path / "strip.png")
     png = np.asarray(Image.open(tmp_path / "strip.png")).astype(np.float64) / 255.0
-    premult = png[..., :3] * png[..., 3:4]
+    premult = srgb_to_linear(png[..., :3]) * png[..., 3:4]
     exr_rgb = np.stack([ch[c].astype(np.float64) for c in "RGB"], -1)
     np.testing.assert_allclose(exr_rgb, premult, atol=1e-3)
     np.testing.assert_allclose(ch["A"].astype(np.float64), png[..., 3], atol=1e-3)

@@ -50,7 +50,10 @@ def register(sub) -> None:
     p = sub.add_parser("export", help="stored samples as BVH (or .npz joint positions)")
     p.add_argument("table")
     _which_run(p)
-    p.add_argument("--out", required=True, help="folder to write (created if missing)")
+    p.add_argument("--out", default=None, help="folder to write (created if missing; required "
+                   "unless --list)")
+    p.add_argument("--band", type=int_at_least(0), default=None,
+                   help="one band of the table (--list shows them; default: all)")
     p.add_argument("--row", default=None, help="one row (default: every generated row)")
     p.add_argument("--replicate", type=_replicate, default=0, help="N or all (default 0)")
     p.add_argument("--item", type=int_at_least(0), default=None,
@@ -111,12 +114,16 @@ def cmd_export(args) -> int:
     from repro.engine.run_samples import describe, run_samples
     from repro.report.export import export_samples
 
+    from repro.errors import ConfigError
+
+    if args.out is None and not args.list:
+        raise ConfigError("repro export: --out FOLDER is required (or --list)")
     rs = run_samples(args.table, scale=args.scale, dataset=args.dataset, run=args.run)
     if args.list:
         print(describe(rs))
         return 0
     rec = export_samples(rs, args.out, row=args.row, replicate=args.replicate, item=args.item,
-                         fmt=args.format, dummy_root=args.dummy_root)
+                         fmt=args.format, dummy_root=args.dummy_root, band=args.band)
     for s in rec.get("skipped", []):
         print(f"repro: skipped {s['row']}: {s['reason']}", file=sys.stderr)
     print(f"repro: {len(rec['files'])} {args.format} file(s) of {rs.spec.id} (run {rs.run_id}) "

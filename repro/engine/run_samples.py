@@ -49,6 +49,7 @@ class BandSamples:
     protocol_id: str
     group: str | None
     config: dict | None            # a generate job's config (protocol params, data set, ...)
+    evaluator_key: str | None = None  # the store key of the band's evaluator (run.json)
     rows: list[RowSamples] = field(default_factory=list)
     real_row: str | None = None    # the table's Real row id, when it has one
     _cache: dict = field(default_factory=dict, repr=False)
@@ -82,13 +83,24 @@ class BandSamples:
         return hasattr(self.protocol, "test_set")
 
     @property
+    def label(self) -> str:
+        """What the band is, in words: ``multi_action, overall`` (protocol, spec group)."""
+        return self.protocol_id + (f", {self.group}" if self.group else "")
+
+    @property
     def test_set(self):
-        """The multi-action protocol's test sequences (needs the evaluator, from the store)."""
+        """The multi-action protocol's test sequences.  They depend on the run's evaluator,
+        which is read from the store, never trained here: DataError when it is gone."""
         from repro.engine.steps import evaluator_for
+        from repro.store.objects import Store
 
         def make():
             if not self.is_sequence:
                 raise ConfigError(f"protocol {self.protocol_id!r} has no test sequences")
+            if not self.evaluator_key or not Store().has(self.evaluator_key):
+                raise DataError(f"the run's evaluator ({(self.evaluator_key or '?')[:12]}) is no "
+                                "longer in the store, so its test sequences cannot be rebuilt; "
+                                "rerun the table")
             return self.protocol.test_set(self.clipset, self.items, evaluator_for(self.config))
 
         return self._get("test_set", make)
@@ -99,13 +111,13 @@ class BandSamples:
         from repro.store.objects import Store
 
         if not row.available:
-            raise DataError(f"row {row.row_id!r}: {row.reason or 'no samples'}")
+            raise DataError(row.reason or "no samples")
         ck = ("samples", row.key)
         if ck not in self._cache:
             obj = Store().get(row.key)
             if obj is None:
-                raise DataError(f"row {row.row_id!r}: samples {row.key[:12]} are no longer in "
-                                "the store (garbage-collected or corrupt); rerun the table")
+                raise DataError(f"samples {row.key[:12]} are no longer in the store (garbage-"
+                                "collected or corrupt); rerun the table")
             self._cache[ck] = self.protocol.load_generated(obj.file(GENERATED))
         return self._cache[ck]
 
@@ -123,8 +135,12 @@ class RunSamples:
 
 
 def _recorded_keys(rj: dict) -> set[str]:
-    keys = {j.get("key") for j in rj.get("jobs", []) if j.get("kind") == "generate"}
-    return {k for k in keys if k}
+    """Keys of the generate jobs the run read or wrote (a failed or cancelled job is in
+    ``jobs`` with its key but made nothing)."""
+    done = set((rj.get("keys") or {}).get("read", [])) | set((rj.get("keys") or {}).get(
+        "written", []))
+    return {j["key"] for j in rj.get("jobs", [])
+            if j.get("kind") == "generate" and j.get("key") in done}
 
 
 def _group_of(columns: list[str]) -> str | None:
@@ -143,7 +159,8 @@ def run_samples(table: str, *, scale: str = "quick", dataset: str | None = None,
 
     spec = _spec(table)
     if run is not None:
-        path = Path(run) if isinstance(run, Path) else resolve_run(str(run))
+        path = Path(run) if isinstance(run, Path) or Path(str(run)).is_dir() else \
+            resolve_run(str(run))
     else:
         sc = _scale(scale, dataset)
         path = latest_run(spec.id, sc.name, dataset or sc.dataset_for(spec))
@@ -159,8 +176,11 @@ def run_samples(table: str, *, scale: str = "quick", dataset: str | None = None,
                       bool(cfg.get("retrain")), float(cfg.get("budget", 1.0)),
                       int(cfg.get("evaluator_seed", 0)))
     recorded = _recorded_keys(rj)
+    recorded_bands = cfg.get("bands") or []
     bands = [BandSamples(i, b.protocol, _group_of(b.columns) if len(plan.bands) > 1 else None,
-                         None) for i, b in enumerate(plan.bands)]
+                         None, (recorded_bands[i] if i < len(recorded_bands) else {}).get(
+                             "evaluator_key") or b.evaluator_key)
+             for i, b in enumerate(plan.bands)]
     labels = {r.id: r.label for r in spec.rows}
     for rp in plan.rows:
         for bi, measures in sorted(rp.measures.items()):
@@ -174,8 +194,8 @@ def run_samples(table: str, *, scale: str = "quick", dataset: str | None = None,
                     band.config = dict(gen.config)
                 key = gen.key()
                 reason = None if key in recorded else (
-                    "the run did not record these samples (made by other code or options; "
-                    "rerun the table to draw them)")
+                    "the run did not record these samples (the row failed, or they were made "
+                    "by other code or options; rerun the table to draw them)")
                 band.rows.append(RowSamples(rp.row_id, labels.get(rp.row_id, rp.row_id),
                                             rp.method, bi, r, int(gen.seed), key, reason))
     return RunSamples(spec, Path(path), rj, bands)

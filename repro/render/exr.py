@@ -2,8 +2,10 @@
 
 :func:`write_exr` writes one single-part scanline image (ZIP compression) with the channels
 
-- ``R``, ``G``, ``B``, ``A``: HALF, ``rgba / 255`` with **premultiplied** alpha (the OpenEXR
-  convention: ``R = r/255 * a/255``), so the transparent background is ``(0, 0, 0, 0)``;
+- ``R``, ``G``, ``B``, ``A``: HALF, **scene-linear** colour (the PNG's sRGB-encoded bytes
+  decoded with the sRGB transfer function, :func:`srgb_to_linear`, as compositors expect) with
+  **premultiplied** alpha (the OpenEXR convention: ``R = linear(r/255) * a/255``), so the
+  transparent background is ``(0, 0, 0, 0)``;
 - ``Z``: FLOAT, the strip's depth in metres from the camera plane (see
   :mod:`repro.render.strips`); where nothing was drawn it stays **+inf** (IEEE infinity, which
   EXR stores as is: "infinitely far", never confused with a real depth);
@@ -24,11 +26,18 @@ import OpenEXR
 from repro.render.strips import StripImage, atomic_write
 
 
+def srgb_to_linear(c: np.ndarray) -> np.ndarray:
+    """The sRGB transfer function undone (IEC 61966-2-1), values in [0, 1]."""
+    c = np.asarray(c, np.float32)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
 def exr_channels(image: StripImage) -> dict[str, np.ndarray]:
     """The channels :func:`write_exr` stores, as arrays."""
     rgba = image.rgba.astype(np.float32) / 255.0
     a = rgba[..., 3]
-    out = {c: np.ascontiguousarray((rgba[..., i] * a).astype(np.float16))
+    lin = srgb_to_linear(rgba[..., :3])
+    out = {c: np.ascontiguousarray((lin[..., i] * a).astype(np.float16))
            for i, c in enumerate("RGB")}
     out["A"] = np.ascontiguousarray(a.astype(np.float16))
     out["Z"] = np.ascontiguousarray(image.depth, dtype=np.float32)

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from repro.errors import ConfigError
+from repro.errors import ConfigError, DataError
 
 FORMATS = ("bvh", "npz")
 
@@ -58,9 +58,12 @@ def _pieces(band, g, item: int | None):
 
 def export_samples(rs, out: str | Path, *, row: str | None = None,
                    replicate: int | str = 0, item: int | None = None, fmt: str = "bvh",
-                   dummy_root: bool = False) -> dict:
+                   dummy_root: bool = False, band: int | None = None) -> dict:
     """Write the chosen samples of a run (:func:`repro.engine.run_samples.run_samples`) into
-    the folder ``out``; returns the ``export.json`` record."""
+    the folder ``out``; returns the ``export.json`` record.  Every choice is checked (and every
+    chosen sample read) before the first file is written, so a bad ``item`` writes nothing.
+    ``band``: only that band of the table (``--list`` shows them; an ``item`` is a test item
+    in a single-action band and a test sequence in a multi-action one)."""
     import torch
 
     from repro.data.bvh_write import write_bvh
@@ -68,7 +71,10 @@ def export_samples(rs, out: str | Path, *, row: str | None = None,
 
     if fmt not in FORMATS:
         raise ConfigError(f"unknown export format {fmt!r} (choose from {', '.join(FORMATS)})")
-    rows = [r for b in rs.bands for r in b.rows]
+    if band is not None and not 0 <= band < len(rs.bands):
+        raise ConfigError(f"--band {band}: {rs.spec.id} has bands 0..{len(rs.bands) - 1} "
+                          "(repro export --list shows them)")
+    rows = [r for b in rs.bands for r in b.rows if band is None or b.index == band]
     if row is not None:
         ids = sorted({r.row_id for r in rows})
         if row not in ids:
@@ -87,42 +93,47 @@ def export_samples(rs, out: str | Path, *, row: str | None = None,
     if unavailable and len(unavailable) == len(rows):
         raise ConfigError(f"{rs.spec.id} run {rs.run_id}: {unavailable[0].row_id}: "
                           f"{unavailable[0].reason}")
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     multi_band = len({r.band for r in rows}) > 1
     record = {"schema": 1, "table": rs.spec.id, "run": rs.run_id, "format": fmt, "files": []}
+    todo = []
     for r in rows:
         if not r.available:
             record.setdefault("skipped", []).append({"row": r.row_id, "reason": r.reason})
             continue
-        band = rs.bands[r.band]
-        g = band.load(r)
+        b = rs.bands[r.band]
+        try:
+            g = b.load(r)
+        except DataError as e:
+            raise DataError(f"{rs.spec.id} run {rs.run_id}: row {r.row_id!r}: {e}") from None
+        todo += [(r, b, g, *piece) for piece in _pieces(b, g, item)]  # checks `item`
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    for r, b, g, suffix, parts, meta in todo:
         m = g.motion
         sk = m.skeleton
-        for suffix, parts, meta in _pieces(band, g, item):
-            root = torch.cat([m.root[i, :n] for i, n in parts]).double()
-            rot6d = torch.cat([m.rot6d[i, :n] for i, n in parts])
-            one = m.replace(root=root[None], rot6d=rot6d[None])
-            stem = f"{r.row_id}{f'-band{r.band}' if multi_band else ''}-r{r.replicate}-{suffix}"
-            if fmt == "bvh":
-                from repro.data.bandai import DUMMY_ROOT
+        root = torch.cat([m.root[i, :n] for i, n in parts]).double()
+        rot6d = torch.cat([m.rot6d[i, :n] for i, n in parts])
+        one = m.replace(root=root[None], rot6d=rot6d[None])
+        stem = f"{r.row_id}{f'-band{r.band}' if multi_band else ''}-r{r.replicate}-{suffix}"
+        if fmt == "bvh":
+            from repro.data.bandai import DUMMY_ROOT
 
-                name = f"{stem}.bvh"
-                write_bvh(out / name, sk, root.numpy(), one.rotmats()[0].double().numpy(), m.fps,
-                          dummy_root=DUMMY_ROOT if dummy_root else None)
-            else:
-                name = f"{stem}.npz"
-                buf = io.BytesIO()
-                np.savez_compressed(
-                    buf, joints=one.joints()[0].double().numpy(), root=root.numpy(),
-                    rot6d=rot6d.double().numpy(), names=np.array(sk.names),
-                    parents=np.array(sk.parents, dtype=np.int64), fps=np.float64(m.fps),
-                    meta=np.array(json.dumps({"table": rs.spec.id, "run": rs.run_id,
-                                              "row": r.row_id, **meta}, sort_keys=True)))
-                atomic_write_bytes(out / name, buf.getvalue())
-            record["files"].append({"file": name, "row": r.row_id, "band": r.band,
-                                    "protocol": band.protocol_id, "replicate": r.replicate,
-                                    "seed": r.seed, "fps": m.fps, **meta})
+            name = f"{stem}.bvh"
+            write_bvh(out / name, sk, root.numpy(), one.rotmats()[0].double().numpy(), m.fps,
+                      dummy_root=DUMMY_ROOT if dummy_root else None)
+        else:
+            name = f"{stem}.npz"
+            buf = io.BytesIO()
+            np.savez_compressed(
+                buf, joints=one.joints()[0].double().numpy(), root=root.numpy(),
+                rot6d=rot6d.double().numpy(), names=np.array(sk.names),
+                parents=np.array(sk.parents, dtype=np.int64), fps=np.float64(m.fps),
+                meta=np.array(json.dumps({"table": rs.spec.id, "run": rs.run_id,
+                                          "row": r.row_id, **meta}, sort_keys=True)))
+            atomic_write_bytes(out / name, buf.getvalue())
+        record["files"].append({"file": name, "row": r.row_id, "band": r.band,
+                                "protocol": b.protocol_id, "replicate": r.replicate,
+                                "seed": r.seed, "fps": m.fps, **meta})
     atomic_write_bytes(out / "export.json",
                        (json.dumps(record, indent=1, sort_keys=True) + "\n").encode())
     return record

@@ -129,7 +129,16 @@ def provenance(run_path: Path | None, rj: dict | None, view) -> list[tuple[str, 
                         f"{env.get('platform')}, device {env.get('device')}, "
                         f"{env.get('threads')} threads"),
             ("packages", ", ".join(f"{k} {v}" for k, v in sorted(pk.items()))),
-            ("run folder", str(run_path) if run_path else "-")]
+            ("pictures drawn by", _drawn_by())]
+
+
+def _drawn_by() -> str:
+    """The code that drew this report (it may be newer than the run's)."""
+    from repro.store.runs import git_state
+
+    g = git_state() or {}
+    return (g.get("commit") or "unknown (not a git checkout)") + (
+        " + uncommitted changes" if g.get("dirty") else "")
 
 
 def _run_of(table_id: str, scale: str, dataset: str | None, run: str | None):
@@ -212,13 +221,17 @@ def table_page(table_id: str, out: Path, *, scale: str = "quick", dataset: str |
             f = st["files"]
             body.append(f"<div class=\"strip\"><h3>{E(st['title'])}</h3>"
                         f"<img src=\"{rel}/{f['png']}\" alt=\"{E(st['title'])}\">"
-                        f"<p class=\"muted\">Replicate {st['replicate']}; rows: "
+                        f"<p class=\"muted\">{E(st['band_label'])}; replicate "
+                        f"{st['replicate']}; rows: "
                         f"{E(', '.join(st['rows']))}. Multi-channel OpenEXR (R, G, B, A, Z, "
                         f"JointIndex): <a href=\"{rel}/{f['exr']}\">{f['exr']}</a></p></div>")
         for n in rec["notes"]:
             body.append(f"<p class=\"muted\">No strip: {E(n)}</p>")
         if not rec["strips"] and not rec["notes"]:
-            body.append("<p class=\"muted\">No row of this table generated samples.</p>")
+            why = ("its data set is not available" if any(
+                r.status == "data unavailable" for r in view.rows) else
+                "no row of this table generated samples")
+            body.append(f"<p class=\"muted\">No strips: {E(why)}.</p>")
 
     body.append("<h2>Provenance</h2><dl>" + "".join(
         f"<dt>{E(k)}</dt><dd>{E(v)}</dd>" for k, v in provenance(path, rj, view)) + "</dl>")
@@ -235,9 +248,13 @@ def write_report(tables: list[str], out: str | Path, *, scale: str = "quick",
     from repro.engine.runner import _spec, latest_run
     from repro.specs.load import load_all
 
+    from repro.errors import ConfigError
+
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    if run is not None and len(set(tables)) > 1:
+        raise ConfigError("--run names one run, of one table; give one table with it")
     ids = list(dict.fromkeys(_spec(t).id for t in tables))
+    out.mkdir(parents=True, exist_ok=True)
     done = {t: table_page(t, out, scale=scale, dataset=dataset,
                           run=run if len(ids) == 1 else None, items=items, strips=strips)
             for t in ids}

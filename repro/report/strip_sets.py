@@ -12,8 +12,10 @@ What a strip shows:
   then the first ``max_actions`` actions of the chain, each a coloured segment with its tag;
   every junction (an action's first frame) is a key frame, as are each action's middle frame
   and the frame before each later junction; the last ``K`` frames of an action are the context
-  the next one was conditioned on (Alg. 1), marked as the next action's transition window.  The real band shows the real test actions at the same
-  test-set positions, each in its own world frame (they were never one take).
+  the next one was conditioned on (Alg. 1), marked as the next action's transition window; an
+  action that Action Revision regenerated (ss_ar, Table 5 / Fig. 10) has "(AR)" after its tag.
+  The real band shows the real test actions at the same test-set positions, each in its own
+  world frame (they were never one take).
 
 Items: single action: ``items`` test items of different tags (a seeded choice, ``seed``);
 multi action: the first ``items`` test sequences (the test set is already a seeded draw).
@@ -88,16 +90,17 @@ def _single_strips(band, rows, n_items: int, replicate: int, key_frames: int,
 
         panels = [panel("Real (test action)", real.motion)]
         shown = []
-        for r in rows:
-            panels.append(panel(r.label, band.load(r).motion))
+        for r, g in rows:
+            panels.append(panel(r.label, g.motion))
             shown.append(r.row_id)
         frames = key_frame_indices(K + L, key_frames, include=[K - 1, K])
         out.append(Strip(f"band{band.index}-item{i}",
-                         f"item {i}: {tag} (next: {nxt}), {L} frames after {K} context frames",
+                         f"{band.label}: item {i}: {tag} (next: {nxt}), {L} frames after {K} "
+                         "context frames",
                          panels, frames,
                          {"band": band.index, "protocol": band.protocol_id, "item": i, "tag": tag,
                           "next_tag": nxt, "frames": L, "context_frames": K, "rows": shown,
-                          "replicate": replicate}))
+                          "replicate": replicate, "band_label": band.label}))
     return out
 
 
@@ -127,24 +130,30 @@ def _sequence_strips(band, rows, n_items: int, replicate: int, max_actions: int)
         panels = [Panel("Real (test-set actions)", real_j, tag=" > ".join(tags), segments=segs,
                         frame_offset=-K)]
         shown = []
-        for r in rows:
-            g = band.load(r)
-            if g.n_sequences != S or g.n_actions != L or g.test_set_key != ts.key():
-                raise DataError(f"row {r.row_id!r}: stored samples are of another test set")
+        revised_any = False
+        for r, g in rows:
             acts = [_joints(g.motion.select(s * L + j))[:n] for j, n in enumerate(lens)]
+            rev = [bool(g.revised[s * L + j]) if g.revised is not None else False
+                   for j in range(A)]
+            revised_any |= any(rev)
+            own = [segs[0]] + [Segment(sg.start, sg.stop, sg.tag + (" (AR)" if v else ""),
+                                       transition=sg.transition)
+                               for sg, v in zip(segs[1:], rev)]
             panels.append(Panel(r.label, np.concatenate([ctx] + acts), tag=" > ".join(tags),
-                                segments=segs, frame_offset=-K))
+                                segments=own, frame_offset=-K))
             shown.append(r.row_id)
         # P₋₁ of action 1, each junction, each action's middle, and the last frame before each
         # later junction (inside the window the next action is conditioned on)
         frames = sorted({K - 1, *starts, *[a + n // 2 for a, n in zip(starts, lens)],
                          *[a - 1 for a in starts[1:]]})
         out.append(Strip(f"band{band.index}-seq{s}",
-                         f"test sequence {s}: actions 1-{A} of {L} ({' > '.join(tags)})",
+                         f"{band.label}: test sequence {s}: actions 1-{A} of {L} "
+                         f"({' > '.join(tags)})",
                          panels, frames,
                          {"band": band.index, "protocol": band.protocol_id, "sequence": s,
                           "tags": tags, "frames": lens, "context_frames": K, "rows": shown,
-                          "replicate": replicate, "actions_shown": A, "actions": L}))
+                          "replicate": replicate, "actions_shown": A, "actions": L,
+                          "band_label": band.label}))
     return out
 
 
@@ -152,20 +161,33 @@ def table_strips(rs, *, items: int = 2, replicate: int = 0, key_frames: int = 8,
                  max_actions: int = 4, seed: int = 0) -> tuple[list[Strip], list[str]]:
     """The strips of a run (:class:`repro.engine.run_samples.RunSamples`) and notes on rows
     that have none."""
+    reps = sorted({r.replicate for b in rs.bands for r in b.rows})
+    if reps and replicate not in reps:
+        from repro.errors import ConfigError
+
+        raise ConfigError(f"--replicate {replicate}: the run has replicates "
+                          f"{', '.join(map(str, reps))}")
     strips: list[Strip] = []
     notes: list[str] = []
     for band in rs.bands:
-        rows = [r for r in band.rows if r.replicate == replicate]
-        missing = [r for r in rows if not r.available]
-        for r in missing:
-            notes.append(f"{r.row_id} ({band.protocol_id}): {r.reason}")
-        rows = [r for r in rows if r.available]
-        if not rows:
+        loaded = []
+        for r in (r for r in band.rows if r.replicate == replicate):
+            try:
+                g = band.load(r)  # DataError: not recorded, gone from the store, malformed
+                if band.is_sequence and g.test_set_key != band.test_set.key():
+                    raise DataError("its stored samples are of another test set")
+                loaded.append((r, g))
+            except DataError as e:
+                notes.append(f"{r.row_id} ({band.label}): {e}")
+        if not loaded:
             continue
-        if band.is_sequence:
-            strips += _sequence_strips(band, rows, items, replicate, max_actions)
-        else:
-            strips += _single_strips(band, rows, items, replicate, key_frames, seed)
+        try:
+            if band.is_sequence:
+                strips += _sequence_strips(band, loaded, items, replicate, max_actions)
+            else:
+                strips += _single_strips(band, loaded, items, replicate, key_frames, seed)
+        except DataError as e:  # the band's items or test set cannot be rebuilt
+            notes.append(f"{band.label}: no strips: {e}")
     return strips, notes
 
 
