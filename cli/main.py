@@ -58,6 +58,20 @@ def _one_line(msg: str) -> str:
     return f"{msg[:half]} … [{len(msg) - 2 * half} characters left out] … {msg[-half:]}"
 
 
+def _dataset_specs(args) -> None:
+    """``--dataset path/to/spec.toml``: register the declared data set (for this process and
+    the job processes it starts) and go on with its name, so records and job keys name the
+    data set, not a path on this machine."""
+    text = getattr(args, "dataset", None)
+    if isinstance(text, str) and text.endswith(".toml"):
+        from repro.data.dataset_spec import is_spec_path, register_spec_path
+        from repro.errors import ConfigError
+
+        if not is_spec_path(text):
+            raise ConfigError(f"--dataset {text}: no such data-set spec file")
+        args.dataset = register_spec_path(text)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -68,6 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     from repro.errors import ReproError
 
     try:
+        _dataset_specs(args)
         rc = func(args)
     except ReproError as e:
         print(f"repro: error: {_one_line(str(e))}", file=sys.stderr)

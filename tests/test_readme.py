@@ -42,6 +42,9 @@ MODES = {
     "repro data info bandai2-seq-mini": "fast",
     "repro data prepare bandai2 --source ../shared/data/bandai-namco-2/bandai-namco-research-motiondataset-2.tar.xz": "data",
     "repro data info bandai2 --json": "data",
+    "repro data check docs/examples/bandai2-declared.toml": "fast",
+    "repro data prepare docs/examples/bandai2-declared.toml": "data",
+    "repro run marionette/table1 --dataset docs/examples/bandai2-declared.toml": "slow",
     "repro eval classifier --dataset bandai2 --scale medium": "slow",
     "repro eval real --dataset bandai2 --json": "slow",
 }

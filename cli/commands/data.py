@@ -29,6 +29,12 @@ def register(subparsers) -> None:
     pi.add_argument("--list", action="store_true", help="list registered data sets and status")
     pi.set_defaults(func=_info)
 
+    pc = sub.add_parser("check", help="validate data-set spec files (or print their JSON "
+                        "Schema)")
+    pc.add_argument("spec", nargs="*", help="data-set spec files (.toml)")
+    pc.add_argument("--schema", action="store_true", help="print the JSON Schema of a spec")
+    pc.set_defaults(func=_check_spec)
+
     pb = sub.add_parser("bundle", help="rebuild the bundled bandai2-mini subset")
     pb.add_argument("--source", help="bandai2 archive or folder (default: as for prepare)")
     pb.add_argument("--out", help="output folder (default: the package's repro/data/bundled/)")
@@ -89,6 +95,11 @@ def _prepare(args: argparse.Namespace) -> int:
 
     if args.name in SEQUENCE_VIEWS:
         return _prepare_view(args)
+    from repro.data.dataset_spec import is_spec_path, spec_file_of
+
+    spec_file = args.name if is_spec_path(args.name) else spec_file_of(args.name)
+    if spec_file is not None:
+        return _prepare_spec(args, spec_file)
     entry = get_entry(args.name)
     if args.name == "bandai2-mini":
         raise ConfigError("bandai2-mini is bundled with the package; rebuild it with "
@@ -107,6 +118,47 @@ def _prepare(args: argparse.Namespace) -> int:
         how = "already prepared" if res.reused else "prepared"
         print(f"{args.name}: {how}: {res.clips} clips, {res.frames} frames in {res.seconds:.1f} s "
               f"-> {res.path}")
+    return 0
+
+
+def _prepare_spec(args: argparse.Namespace, spec_file) -> int:
+    """A data set declared by a spec file (repro.data.dataset_spec)."""
+    from repro.data.dataset_spec import prepare_dataset, register_spec_path
+    from repro.data.registry import clipset_summary, get_entry
+    from repro.errors import ConfigError
+
+    if args.source:
+        raise ConfigError(f"{spec_file}: a declared data set names its source in the spec "
+                          "([source] path); --source is for bandai2")
+    name = register_spec_path(str(spec_file))
+    res = prepare_dataset(spec_file, force=args.force)
+    summary = clipset_summary(get_entry(name).load())
+    if args.json:
+        print(json.dumps({"name": name, "path": str(res.path), "fingerprint": res.fingerprint,
+                          "reused": res.reused, "seconds": round(res.seconds, 2),
+                          "card": summary}, indent=1))
+        return 0
+    how = "already prepared" if res.reused else "prepared"
+    print(f"{name}: {how}: {res.clips} clips, {res.frames} frames in {res.seconds:.1f} s "
+          f"-> {res.path}")
+    _print_summary(summary)
+    return 0
+
+
+def _check_spec(args: argparse.Namespace) -> int:
+    from repro.data.dataset_spec import json_schema, load_dataset_spec
+
+    if args.schema:
+        print(json.dumps(json_schema(), indent=1))
+        return 0
+    from repro.errors import ConfigError
+
+    if not args.spec:
+        raise ConfigError("repro data check: give a data-set spec file (or --schema)")
+    for f in args.spec:
+        spec = load_dataset_spec(f)
+        print(f"{f}: ok: data set {spec.name!r}, {spec.source.format} files in "
+              f"{spec.source.path!r}, labels from {spec.labels.from_}")
     return 0
 
 

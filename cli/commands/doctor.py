@@ -1,9 +1,20 @@
 """``repro doctor``: what data the specs can use, where it is looked for, and what is missing.
 
-One line per registered data set (``repro.data.registry.DATASETS``): name, prepared yes/no,
-where it is (or is looked for), fingerprint prefix, and what is missing; then the body models
-and the compute environment.  It is a report: exit 0 whatever is missing; exit 2 only when the
-registry itself cannot be read (a broken installation).
+One line per registered data set (``repro.data.registry.DATASETS``): name, state, fingerprint
+prefix, where it is (or is looked for), and what is missing or damaged; then the body models
+and the compute environment.  The state is validated, not just looked up (issue 16: it said
+"prepared yes" for any file present): each data set's :meth:`DatasetEntry.validate` opens its
+files cheaply (a prepared cache's ``meta.json``, ``.npy`` headers, sizes and per-clip arrays;
+the bundle's recorded sha256; the upstream readers' own checks) and the line says
+
+- ``prepared, valid``: present and read back intact;
+- ``prepared, damaged``: present but damaged; the next line, ``damaged: <file>: <why>``, names
+  the file and the command that rebuilds it;
+- ``not prepared``: absent; ``missing:`` says what to put where;
+- ``prepared, unchecked``: present, but its entry registers no validation.
+
+It is a report: exit 0 whatever is missing or damaged; exit 2 only when the registry itself
+cannot be read (a broken installation).  It reads only: no data is changed or deleted.
 """
 
 from __future__ import annotations
@@ -23,12 +34,26 @@ def register(subparsers) -> None:
 
 def _datasets() -> list[dict]:
     from repro.data.registry import DATASETS
+    from repro.errors import ReproError
 
     rows = []
     for name, entry in DATASETS.items():
         st = entry.status()
+        try:
+            damaged = entry.validate()
+        except ReproError as e:  # a validator that raises instead of answering
+            damaged = str(e)
+        checked = getattr(entry, "validate_fn", None) is not None
+        if damaged:
+            state = "prepared, damaged"
+        elif st.prepared:
+            state = "prepared, valid" if checked else "prepared, unchecked"
+        else:
+            state = "not prepared"
         rows.append({"name": name, "paper_dataset": bool(entry.is_paper_dataset),
-                     "prepared": bool(st.prepared), "location": st.location,
+                     "prepared": bool(st.prepared), "state": state,
+                     "valid": (not damaged) if (st.prepared or damaged) and checked else None,
+                     "damaged": damaged or None, "location": st.location,
                      "fingerprint": st.fingerprint, "missing": st.missing,
                      "description": entry.description})
     return rows
@@ -77,9 +102,10 @@ def _doctor(args) -> int:
     width = max(len(r["name"]) for r in rows) if rows else 8
     for r in rows:
         fp = r["fingerprint"][:12] if r["fingerprint"] else "-" * 12
-        state = "yes" if r["prepared"] else "no "
-        line = f"{r['name']:<{width}}  prepared {state}  {fp}  {r['location']}"
-        if r["missing"]:
+        line = f"{r['name']:<{width}}  {r['state']:<19}  {fp}  {r['location']}"
+        if r["damaged"]:
+            line += f"\n{'':<{width}}  damaged: {r['damaged']}"
+        if r["missing"] and not (r["damaged"] and not r["prepared"]):
             line += f"\n{'':<{width}}  missing: {r['missing']}"
         print(line)
     for m in models:

@@ -27,6 +27,7 @@ The default split (stratified by action and style, 80/20, seeded) is stored with
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import tarfile
@@ -58,6 +59,16 @@ OFFSET_TOL_CM = 1e-3
 BATCH = 16
 #: Folders with fewer BVH files than this are parsed in-process (a pool costs seconds to start).
 POOL_MIN_FILES = 64
+#: Largest single file read from a source (bytes), checked from the tar header's size (or
+#: ``stat``) before a byte of it is read (issue 16: a 46 KB .tar.xz holding one 300 MB .bvh
+#: used ~1 GB of memory before it was refused).  The largest real Bandai-2 clip is 615 KB.
+MAX_MEMBER_BYTES = 64 * 1024 ** 2
+#: Largest total size of the files a source holds (bytes; every regular archive member counts,
+#: since a stream must decompress a member even to skip it).  The real archive holds 515 MB.
+MAX_SOURCE_BYTES = 4 * 1024 ** 3
+#: Largest tar extension header (a GNU long name or link, a pax header), which :mod:`tarfile`
+#: reads whole into memory before the member it describes; real ones are a few hundred bytes.
+MAX_TAR_HEADER_BYTES = 1024 ** 2
 ARRAYS = ("rotations", "root", "joints", "starts", "lengths", "labels", "styles", "split")
 POINTER = "current.json"
 
@@ -177,9 +188,78 @@ def _label_lines(data: bytes) -> list[str]:
     return out
 
 
-def _iter_source(source: Path) -> Iterator[tuple[str, str, bytes]]:
-    """Yield (kind, label-for-errors, bytes) for each .bvh, .json and cfg label file."""
-    def kind_of(name: str) -> str | None:
+def _mib(n: int) -> str:
+    return f"{n / 1024 ** 2:,.1f} MiB"
+
+
+class _TarCapError(Exception):
+    """Raised inside :mod:`tarfile` by :class:`_CappedTarInfo`; becomes a DataError."""
+
+
+def _open_decompressed(source: Path):
+    """The archive's bytes, decompressed as they are read (xz, gzip, bz2 or plain tar).
+
+    Not :mod:`tarfile`'s own ``r|*``: it inflates each 10 KB compressed chunk whole, and 10 KB
+    of compressed zeros is tens of megabytes (issue 16).  These readers inflate no more than
+    each read asks for.
+    """
+    import bz2
+    import gzip
+    import lzma
+
+    with open(source, "rb") as f:
+        magic = f.read(6)
+    if magic.startswith(b"\xfd7zXZ\x00"):
+        return lzma.open(source, "rb")
+    if magic.startswith(b"\x1f\x8b"):
+        return gzip.open(source, "rb")
+    if magic.startswith(b"BZh"):
+        return bz2.open(source, "rb")
+    return open(source, "rb")
+
+
+class _CappedTarInfo(tarfile.TarInfo):
+    """A TarInfo that refuses, before :mod:`tarfile` reads them, extension headers over
+    :data:`MAX_TAR_HEADER_BYTES` and GNU sparse members (whose block maps :mod:`tarfile` also
+    reads whole; a sparse BVH file is no data set's)."""
+
+    def _proc_member(self, tf):
+        meta = (tarfile.GNUTYPE_LONGNAME, tarfile.GNUTYPE_LONGLINK, tarfile.XHDTYPE,
+                tarfile.XGLTYPE, tarfile.SOLARIS_XHDTYPE)
+        if self.type in meta and self.size > MAX_TAR_HEADER_BYTES:
+            raise _TarCapError(f"a tar extension header of {_mib(self.size)} is over the "
+                               f"{_mib(MAX_TAR_HEADER_BYTES)} cap "
+                               "(bandai.MAX_TAR_HEADER_BYTES); not read")
+        if self.type == tarfile.GNUTYPE_SPARSE:
+            raise _TarCapError(f"{self.name} is a GNU sparse member; re-create the archive "
+                               "without --sparse")
+        return super()._proc_member(tf)
+
+
+def _iter_source(source: Path, kind_of: Callable[[str], str | None] | None = None
+                 ) -> Iterator[tuple[str, str, bytes]]:
+    """Yield (kind, label-for-errors, bytes) for each .bvh, .json and cfg label file (or each
+    file to which ``kind_of``, given the path inside the source, gives a kind: a declared
+    data set's, :mod:`repro.data.dataset_spec`).
+
+    Sizes are checked before anything is read: a file over :data:`MAX_MEMBER_BYTES`, or a
+    source whose files add up to more than :data:`MAX_SOURCE_BYTES`, is a DataError naming the
+    archive, the member and the cap (from the tar header's ``size``; for a folder, ``stat``).
+    """
+    total = 0
+
+    def admit(size: int, where: str, member: str, *, read: bool) -> None:
+        nonlocal total
+        if read and size > MAX_MEMBER_BYTES:
+            raise DataError(f"{member} is {_mib(size)}, over the {_mib(MAX_MEMBER_BYTES)} cap on "
+                            "one file (bandai.MAX_MEMBER_BYTES); not read", where)
+        total += size
+        if total > MAX_SOURCE_BYTES:
+            raise DataError(f"the files up to {member} add up to {_mib(total)}, over the "
+                            f"{_mib(MAX_SOURCE_BYTES)} cap on a source (bandai.MAX_SOURCE_BYTES); "
+                            "not read", where)
+
+    def bandai_kind(name: str) -> str | None:
         base = name.rsplit("/", 1)[-1]
         if base.endswith(".bvh"):
             return "bvh"
@@ -189,30 +269,47 @@ def _iter_source(source: Path) -> Iterator[tuple[str, str, bytes]]:
             return base
         return None
 
+    kind_of = kind_of or bandai_kind
     if source.is_dir():
         for p in sorted(source.rglob("*")):
-            k = kind_of(p.name)
+            k = kind_of(p.relative_to(source).as_posix())
             if k and not _inside(p, source):
                 raise DataError("a symbolic link that leads out of the source folder (copy "
                                 "the file in instead)", p)
             if k and p.is_file():
+                admit(p.stat().st_size, str(source), p.relative_to(source).as_posix(),
+                      read=True)
                 yield k, str(p), p.read_bytes()
         return
+    import lzma
+    import zlib
+
+    broken = (tarfile.TarError, EOFError, OSError, lzma.LZMAError, zlib.error)
+    raw = None
     try:
-        tf = tarfile.open(source, mode="r|*")
-    except (tarfile.TarError, OSError) as e:
-        raise DataError(f"not a readable tar archive or folder ({e})", source) from None
+        raw = _open_decompressed(source)
+        tf = tarfile.open(fileobj=raw, mode="r|", tarinfo=_CappedTarInfo)
+    except (_TarCapError, *broken) as e:
+        if raw is not None:
+            raw.close()
+        why = str(e) if isinstance(e, _TarCapError) else f"not a readable tar archive or folder ({e})"
+        raise DataError(why, source) from None
     try:
-        with tf:
+        with raw, tf:
             for m in tf:
                 k = kind_of(m.name)
+                if m.isfile():  # the header is read; the member's data is not yet
+                    admit(m.size, str(source), m.name, read=k is not None)
                 if k is None or not m.isfile():
                     continue
                 fh = tf.extractfile(m)
                 if fh is None:
                     continue
                 yield k, f"{source}:{m.name}", fh.read()
-    except (tarfile.TarError, EOFError, OSError) as e:
+    except _TarCapError as e:
+        raise DataError(str(e), source) from None
+    except (*broken, RecursionError) as e:
+        # RecursionError: a chain of thousands of extension headers (tarfile recurses on each)
         raise DataError(f"archive is damaged or truncated ({type(e).__name__}: {e})", source) from None
 
 
@@ -574,6 +671,136 @@ def prepare_bandai2(source: str | Path, *, card: DatasetCard = BANDAI2_CARD, wor
         timings["assemble_write_s"] = time.perf_counter() - t0
     return PrepareResult(final, fp, False, time.perf_counter() - t_start, len(order),
                          int(lengths.sum()), timings)
+
+
+# ------------------------------------------------------------------------ validate
+#: Largest deviation from unit length tolerated in the sampled rotations (float32 xyzw).
+UNIT_TOL = 1e-3
+
+
+def _npy_header(path: Path) -> tuple[tuple[int, ...], np.dtype, int]:
+    """(shape, dtype, bytes the header implies for the whole file) of a ``.npy``, reading
+    only its header; ValueError/OSError if it is not one."""
+    fmt = np.lib.format
+    with open(path, "rb") as fh:
+        version = fmt.read_magic(fh)
+        if version == (1, 0):
+            shape, _, dtype = fmt.read_array_header_1_0(fh)
+        elif version == (2, 0):
+            shape, _, dtype = fmt.read_array_header_2_0(fh)
+        else:
+            raise ValueError(f"unsupported .npy version {version}")
+        offset = fh.tell()
+    if dtype.hasobject:
+        raise ValueError("holds Python objects")
+    return shape, dtype, offset + math.prod(shape) * dtype.itemsize
+
+
+def cache_problem(path: Path) -> str | None:
+    """Why the prepared cache folder ``path`` (see :func:`write_cache`) is damaged, as
+    ``"<file>: <problem>"``; ``None`` when it reads back intact.  Used by ``repro doctor``.
+
+    Cheap, nothing but headers and the per-clip arrays is read: ``meta.json`` parses, is this
+    version's and names the folder's fingerprint; every ``.npy`` has a readable header, a
+    numeric dtype, the shape ``meta.json`` implies (clips, frames, joints) and exactly the size
+    its header implies (a truncated or padded file fails); the per-clip arrays agree (starts are
+    the running sum of lengths, labels and styles name existing classes, split is 0/1); the
+    first and last frame hold unit quaternions and finite positions (a file zero-filled after
+    a crash fails).
+    """
+    meta_p = path / "meta.json"
+    try:
+        meta = json.loads(meta_p.read_text())
+    except OSError as e:
+        return f"{meta_p}: cannot be read ({e.strerror or e})"
+    except ValueError as e:
+        return f"{meta_p}: not valid JSON ({e})"
+    try:
+        if meta.get("schema") != SCHEMA or meta.get("prepare_version") != PREPARE_VERSION:
+            return (f"{meta_p}: schema {repr(meta.get('schema'))[:20]} / prepare version "
+                    f"{repr(meta.get('prepare_version'))[:20]}, this version reads {SCHEMA} / "
+                    f"{PREPARE_VERSION}")
+        if meta.get("fingerprint") != path.name:
+            return f"{meta_p}: fingerprint {str(meta.get('fingerprint'))[:16]!r} is not the folder's"
+        n_clips = len(meta["clip_names"])
+        n_joints = len(meta["skeleton"]["names"])
+        n_labels, n_styles = len(meta["label_names"]), len(meta["style_names"])
+    except (AttributeError, KeyError, TypeError) as e:
+        return f"{meta_p}: lacks or garbles {str(e)[:100]} (expected the keys write_cache writes)"
+    heads = {}
+    for k in ARRAYS:
+        f = path / f"{k}.npy"
+        try:
+            shape, dtype, want = heads[k] = _npy_header(f)
+            have = f.stat().st_size
+        except (OSError, ValueError, SyntaxError, TypeError, RecursionError) as e:
+            return f"{f}: not a readable .npy ({type(e).__name__}: {str(e)[:200]})"
+        if have != want:
+            return f"{f}: {have} bytes, its header ({dtype.str} {shape}) implies {want} (truncated?)"
+        if dtype.kind not in ("f" if k in ("rotations", "root", "joints") else "iu"):
+            return f"{f}: dtype {dtype.str} is not what prepare writes"
+    small = {}
+    for k in ("starts", "lengths", "labels", "styles", "split"):
+        f = path / f"{k}.npy"
+        if heads[k][0] != (n_clips,):
+            return f"{f}: shape {heads[k][0]}, meta.json names {n_clips} clips"
+        try:
+            small[k] = np.load(f, allow_pickle=False)
+        except (OSError, ValueError) as e:
+            return f"{f}: not a readable .npy ({e})"
+    lengths = small["lengths"].astype(np.int64)
+    frames = int(lengths.sum())
+    if n_clips and lengths.min() < 1:
+        return f"{path / 'lengths.npy'}: a clip has {int(lengths.min())} frames"
+    if not np.array_equal(small["starts"], np.concatenate([[0], np.cumsum(lengths)[:-1]])
+                          if n_clips else small["starts"]):
+        return f"{path / 'starts.npy'}: not the running sum of lengths.npy"
+    stats = meta.get("stats")
+    stated = stats.get("frames") if isinstance(stats, dict) else None
+    if stated is not None and stated != frames:
+        return f"{path / 'lengths.npy'}: {frames} frames in all, meta.json says {str(stated)[:20]}"
+    for k, hi, lo in (("labels", n_labels, 0), ("styles", n_styles, -1), ("split", 2, 0)):
+        a = small[k]
+        if n_clips and (a.min() < lo or a.max() >= hi):
+            return f"{path / f'{k}.npy'}: values {int(a.min())}..{int(a.max())} outside {lo}..{hi - 1}"
+    for k, tail in (("rotations", (n_joints, 4)), ("root", (3,)), ("joints", (n_joints, 3))):
+        if heads[k][0] != (frames, *tail):
+            return f"{path / f'{k}.npy'}: shape {heads[k][0]}, expected {(frames, *tail)}"
+    if frames:
+        try:
+            q = np.load(path / "rotations.npy", mmap_mode="r")[[0, frames - 1]]
+            x = np.concatenate([np.load(path / f"{k}.npy", mmap_mode="r")[[0, frames - 1]]
+                                .reshape(2, -1) for k in ("root", "joints")], axis=1)
+        except (OSError, ValueError) as e:
+            return f"{path}: cannot be read ({e})"
+        dev = float(np.abs(np.linalg.norm(q.astype(np.float64), axis=-1) - 1).max())
+        if not dev <= UNIT_TOL:
+            return f"{path / 'rotations.npy'}: first/last frame rotations are not unit quaternions"
+        if not np.isfinite(x).all():
+            return f"{path}: non-finite positions in the first/last frame of root/joints.npy"
+    return None
+
+
+def prepared_problem(name: str = "bandai2", rebuild: str | None = None) -> str | None:
+    """Why the last prepared cache of ``name`` is damaged (file named, with the command that
+    rebuilds it: ``rebuild``, default :func:`prepare_command` + ``--force``); ``None`` when it
+    is intact or was never prepared.  See :func:`cache_problem`.  Any data set prepared with
+    :func:`write_cache` can register it as its ``DatasetEntry.validate_fn``."""
+    root = dataset_dir(name)
+    ptr = root / POINTER
+    if not ptr.exists():
+        return None
+    fix = f"; rebuild with: {rebuild or prepare_command(name) + ' --force'}"
+    try:
+        fp = json.loads(ptr.read_text())["fingerprint"]
+        if not isinstance(fp, str) or not fp or "/" in fp or fp.startswith("."):
+            raise TypeError("fingerprint is not a folder name")
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        return f"{ptr}: cannot be read ({type(e).__name__}: {e}){fix}"
+    if not (root / fp).is_dir():
+        return f"{root / fp}: the prepared cache {POINTER} points to is gone{fix}"
+    why = cache_problem(root / fp)
+    return None if why is None else why + fix
 
 
 # ------------------------------------------------------------------------ load

@@ -32,7 +32,8 @@ class DatasetEntry:
     """One registered data set.
 
     ``status_fn`` answers :meth:`status` (subclasses may override :meth:`status` instead);
-    ``loader`` returns the ClipSet (``None``: the data set has no ClipSet loader here).
+    ``loader`` returns the ClipSet (``None``: the data set has no ClipSet loader here);
+    ``validate_fn`` answers :meth:`validate` (``None``: nothing beyond :meth:`status` is checked).
     """
 
     name: str
@@ -40,11 +41,20 @@ class DatasetEntry:
     is_paper_dataset: bool
     status_fn: Callable[[], DatasetStatus] | None = field(default=None, repr=False, compare=False)
     loader: Callable[[], object] | None = field(default=None, repr=False, compare=False)
+    validate_fn: Callable[[], str | None] | None = field(default=None, repr=False,
+                                                         compare=False)
 
     def status(self) -> DatasetStatus:
         if self.status_fn is None:
             return DatasetStatus(False, "", None, "no status check is registered for this data set")
         return self.status_fn()
+
+    def validate(self) -> str | None:
+        """Open the data set's files cheaply (headers, shapes, stored checksums, the reader's
+        own checks) and say why they are damaged, naming the file; ``None`` when they read back
+        intact or are not there (:meth:`status` says what is missing).  ``repro doctor`` reports
+        it (issue 16: it used to say "prepared yes" for any file present)."""
+        return None if self.validate_fn is None else self.validate_fn()
 
     def load(self):
         if self.loader is None:
@@ -78,6 +88,12 @@ def _load_bandai2():
     return load_bandai2("bandai2")
 
 
+def _bandai2_validate() -> str | None:
+    from repro.data.bandai import prepared_problem
+
+    return prepared_problem("bandai2")
+
+
 def _mini_status() -> DatasetStatus:
     from repro.data.bundle import META, NPZ, bundled_dir, mini_available
 
@@ -101,14 +117,62 @@ def _load_mini():
     return load_mini()
 
 
+def _mini_validate() -> str | None:
+    """The bundle against the sha256 its .json records, its .npz members, and the decoded
+    cache built from it on first load (if there is one)."""
+    import json
+    import zipfile
+
+    from repro.data.bandai import cache_problem, dataset_dir
+    from repro.data.bundle import (
+        META,
+        MINI_NAME,
+        MINI_SCHEMA,
+        NPZ,
+        bundled_dir,
+        mini_available,
+    )
+    from repro.keys import content_key, sha256_file
+
+    d = bundled_dir()
+    if not mini_available(d):
+        return None
+    fix = "; rebuild with: repro data bundle --source PATH"
+    try:
+        meta = json.loads((d / META).read_text())
+        if meta.get("schema") != MINI_SCHEMA:
+            return f"{d / META}: schema {meta.get('schema')!r}, expected {MINI_SCHEMA}{fix}"
+        recorded = meta.get("npz_sha256")
+    except (OSError, ValueError, AttributeError) as e:
+        return f"{d / META}: cannot be read ({type(e).__name__}: {e}){fix}"
+    npz_sha = sha256_file(d / NPZ)
+    if npz_sha != recorded:
+        return f"{d / NPZ}: content does not match the sha256 recorded in {META}{fix}"
+    try:
+        with zipfile.ZipFile(d / NPZ) as z:
+            names = set(z.namelist())
+    except (OSError, zipfile.BadZipFile) as e:
+        return f"{d / NPZ}: not a readable .npz ({e}){fix}"
+    want = {f"{k}.npy" for k in ("rotations_q", "root", "lengths", "labels", "styles", "split")}
+    if not want <= names:
+        return f"{d / NPZ}: lacks {', '.join(sorted(want - names))}{fix}"
+    fp = content_key({"dataset": MINI_NAME, "npz": npz_sha, "meta": sha256_file(d / META)})
+    cache = dataset_dir(MINI_NAME) / fp
+    if (cache / "meta.json").is_file():
+        why = cache_problem(cache)
+        if why is not None:
+            return f"{why}; delete {cache} (it is rebuilt from the bundle on next use)"
+    return None
+
+
 def _builtin_entries() -> list[DatasetEntry]:
     return [
         DatasetEntry("bandai2", "Bandai-Namco-Research-Motiondataset-2 (real mocap stand-in: "
                      "2,902 clips, 10 actions x 7 styles, 30 fps; CC BY-NC 4.0)", False,
-                     _bandai2_status, _load_bandai2),
+                     _bandai2_status, _load_bandai2, _bandai2_validate),
         DatasetEntry("bandai2-mini", "bundled deterministic subset of bandai2 (4 clips per "
                      "action x style; default at the quick scale; CC BY-NC 4.0)", False,
-                     _mini_status, _load_mini),
+                     _mini_status, _load_mini, _mini_validate),
     ]
 
 
@@ -126,13 +190,71 @@ def _upstream_entries() -> list[DatasetEntry]:
     return list(mod.ENTRIES)
 
 
+def builtin_names() -> set[str]:
+    """Names a user's data-set spec may not take: the stand-ins, their sequence views and the
+    papers' data sets."""
+    from repro.data.sequences import SEQUENCE_VIEWS
+
+    return {e.name for e in _builtin_entries() + _upstream_entries()} | set(SEQUENCE_VIEWS)
+
+
+def _spec_status(name: str, path) -> DatasetStatus:
+    from repro.data.bandai import current_cache, dataset_dir
+
+    found = current_cache(name)
+    if found is not None:
+        return DatasetStatus(True, str(found[0]), found[1]["fingerprint"], None)
+    return DatasetStatus(False, str(dataset_dir(name)), None,
+                         f"not prepared; run: repro data prepare {path}")
+
+
+def _spec_load(name: str, path):
+    from repro.data.bandai import current_cache, open_cache
+
+    found = current_cache(name)
+    if found is None:
+        raise MissingDataError(f"data set {name!r} is not prepared; run: repro data prepare "
+                               f"{path}")
+    return open_cache(found[0], found[1], name)
+
+
+def _spec_entries() -> list[DatasetEntry]:
+    """The data sets of the spec files in ``$REPRO_DATASETS`` (repro.data.dataset_spec)."""
+    from functools import partial
+
+    from repro.data.dataset_spec import load_dataset_spec, spec_files
+
+    out = []
+    for path in spec_files():
+        spec = load_dataset_spec(path)
+        from repro.data.bandai import prepared_problem
+
+        out.append(DatasetEntry(spec.name, spec.description or f"declared in {path}", False,
+                                partial(_spec_status, spec.name, path),
+                                partial(_spec_load, spec.name, path),
+                                partial(prepared_problem, spec.name,
+                                        f"repro data prepare {path} --force")))
+    return out
+
+
 def _build() -> dict[str, DatasetEntry]:
     out: dict[str, DatasetEntry] = {}
     for e in _builtin_entries() + _upstream_entries():
         if e.name in out:
             raise RuntimeError(f"data set {e.name!r} is registered twice")
         out[e.name] = e
+    for e in _spec_entries():
+        if e.name in out:
+            raise ConfigError(f"data set {e.name!r} is declared by two spec files in "
+                              "$REPRO_DATASETS")
+        out[e.name] = e
     return out
+
+
+def reset() -> None:
+    """Forget the registry (rebuilt on next use: after $REPRO_DATASETS changed)."""
+    DATASETS.clear()
+    DATASETS._built = False
 
 
 class _Registry(dict):
@@ -192,7 +314,12 @@ def dataset_names() -> list[str]:
 
 
 def get_entry(name: str) -> DatasetEntry:
-    """The entry for ``name``; a ConfigError with a did-you-mean suggestion if unknown."""
+    """The entry for ``name`` (a registered name, or the path of a data-set spec file, which
+    is registered on the way); a ConfigError with a did-you-mean suggestion if unknown."""
+    from repro.data.dataset_spec import is_spec_path, register_spec_path
+
+    if is_spec_path(name):
+        name = register_spec_path(name)
     if name in DATASETS:
         return DATASETS[name]
     near = difflib.get_close_matches(name, dataset_names(), n=1)

@@ -677,7 +677,11 @@ def _evidence_text(claim: dict) -> str | None:
 def _standin(dataset: str | None) -> str | None:
     from repro.specs import names
 
-    return dataset if dataset is not None and names.DATASETS[dataset].standin else None
+    if dataset is None:
+        return None
+    info = names.DATASETS.get(dataset)
+    # a declared data set (repro.data.dataset_spec) is never a paper's: a stand-in too
+    return dataset if info is None or info.standin else None
 
 
 def _paper_title(spec) -> str:

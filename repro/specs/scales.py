@@ -205,7 +205,11 @@ def resolve_scale(name: str, dataset: str | None = None, *, path: str | Path | N
         raise ConfigError(f"unknown scale {name!r}{names.suggest(name, SCALE_NAMES)} "
                           f"(choose from {', '.join(SCALE_NAMES)})")
     if dataset is not None and dataset not in names.DATASETS:
-        raise ConfigError(names.unknown_name_message("dataset", dataset))
+        from repro.data.registry import DATASETS as REGISTERED  # + declared data sets
+
+        if dataset not in REGISTERED:
+            raise ConfigError(names.unknown_name_message("dataset", dataset,
+                                                         list(REGISTERED)))
     path = Path(path) if path is not None else scales_path()
     sf = load_scales(path)
     prof: ScaleProfile = getattr(sf, name)

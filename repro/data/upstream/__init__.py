@@ -13,7 +13,11 @@ layouts in ``docs/datasets.md`` and each module's docstring):
 - ``babel-mag`` (Neural Marionette): not public; its status says so.
 
 ``ENTRIES`` is read by :mod:`repro.data.registry`.  Status checks are cheap (file presence;
-fingerprints are content hashes cached by file stat, see :mod:`.fingerprint`).
+fingerprints are content hashes cached by file stat, see :mod:`.fingerprint`).  Validation
+(``repro doctor``, issue 16) runs each reader's own checks on the files present (HumanAct12:
+the restricted unpickler and every clip's shape, values and label; UESTC and CMU MoCap: every
+listed clip's ``.npy``; BABEL: the annotations, already read by its status check), without
+building a ClipSet.
 """
 
 from __future__ import annotations
@@ -150,8 +154,49 @@ def _babel_mag_check(d: Path):
                   "run on the bandai2 stand-in")
 
 
+def _validate(name: str, check, read) -> str | None:
+    """``read(dir)`` (the reader, no ClipSet) when ``check`` finds the files present: its
+    DataError, naming the file, is the damage; ``None`` when absent or intact."""
+    d = paper_data_dir(name)
+    try:
+        if check(d)[1] is not None:
+            return None  # not present: the status line says what is missing
+    except ReproError:
+        return None  # the status line quotes it
+    if read is None:
+        return None
+    try:
+        read(d)
+    except ReproError as e:
+        return str(e)
+    return None
+
+
+def _read_humanact12(d: Path):
+    from .humanact12 import read_humanact12
+
+    return read_humanact12(d)
+
+
+def _read_uestc(d: Path):
+    from .uestc import read_uestc
+
+    return read_uestc(d)
+
+
+def _read_cmu(d: Path):
+    from .cmu_mocap import read_cmu_mocap
+
+    return read_cmu_mocap(d)
+
+
+_READERS = {"humanact12": _read_humanact12, "uestc": _read_uestc, "cmu-mocap": _read_cmu}
+
+
 def _entry(name: str, description: str, check, loader) -> DatasetEntry:
-    return DatasetEntry(name, description, True, lambda: _status(name, check), loader)
+    validate = (None if loader is None else
+                lambda: _validate(name, check, _READERS.get(name)))  # BABEL: its check reads
+    return DatasetEntry(name, description, True, lambda: _status(name, check), loader, validate)
 
 
 ENTRIES: list[DatasetEntry] = [

@@ -62,15 +62,55 @@ def _as_list(data: dict, key: str, path: Path) -> list:
     if key not in data:
         raise DataError(f"missing key {key!r} (expected poses, joints3D, y)", path)
     v = data[key]
-    if isinstance(v, np.ndarray) and v.dtype != object:
+    if isinstance(v, (list, tuple)) or (isinstance(v, np.ndarray) and v.ndim >= 1):
         return list(v)
-    if isinstance(v, (list, tuple, np.ndarray)):
-        return list(v)
-    raise DataError(f"key {key!r} must be a list of per-clip arrays, got {type(v).__name__}", path)
+    got = f"a 0-d {v.dtype} array" if isinstance(v, np.ndarray) else type(v).__name__
+    raise DataError(f"key {key!r} must be a list of per-clip arrays, got {got}", path)
+
+
+def _quote(x) -> str:
+    """A short description of an untrusted value for an error line (never a full repr: a
+    pickled list graph can print forever)."""
+    if isinstance(x, np.generic):
+        x = x.item()
+    if isinstance(x, int) and not isinstance(x, bool) and x.bit_length() > 128:
+        return f"an integer of {x.bit_length()} bits"  # (repr refuses over 4,300 digits)
+    if isinstance(x, (str, bytes, int, float)):
+        r = repr(x)
+        return r if len(r) <= 40 else r[:40] + "..."
+    return f"a {type(x).__name__}"
+
+
+def _numeric_clip(x, i: int, key: str, path: Path) -> np.ndarray:
+    """Clip ``i`` of ``key`` as a numeric array (issue 16: a string or an object array was a
+    TypeError traceback, a nested list could make numpy walk a shared list graph)."""
+    if not isinstance(x, np.ndarray):
+        raise DataError(f"clip {i}: {key} must be a numeric array, got {_quote(x)}", path)
+    if x.dtype.kind not in "iuf":
+        raise DataError(f"clip {i}: {key} must be a numeric array, got dtype {x.dtype} "
+                        f"({'objects' if x.dtype.kind == 'O' else x.dtype.kind})", path)
+    return x
+
+
+def _label(y, i: int, path: Path) -> int:
+    """An integer class label: a Python/numpy integer, or a float with an integral value.
+    Anything else (3.7, '3', True, a list) is refused (issue 16: 3.7 used to become 3)."""
+    if isinstance(y, np.ndarray) and y.size == 1 and y.dtype.kind in "iuf":
+        y = y.reshape(()).item()
+    if isinstance(y, (bool, np.bool_)):
+        raise DataError(f"clip {i}: label {_quote(y)} is not an integer", path)
+    if isinstance(y, (int, np.integer)):
+        return int(y)
+    if isinstance(y, (float, np.floating)) and np.isfinite(y) and float(y).is_integer():
+        return int(y)
+    raise DataError(f"clip {i}: label {_quote(y)} is not an integer", path)
 
 
 def read_humanact12(path: str | Path) -> HumanAct12Data:
-    """Read ACTOR's ``humanact12poses.pkl`` (restricted unpickler); validate every clip."""
+    """Read ACTOR's ``humanact12poses.pkl`` (restricted unpickler); validate every clip.
+
+    Each clip's ``poses``/``joints3D`` must be a numeric array and each label an integer (an
+    integral float such as ``3.0`` is accepted); a DataError names the file otherwise."""
     path = Path(path)
     if path.is_dir():
         path = path / HUMANACT12_FILE
@@ -87,8 +127,8 @@ def read_humanact12(path: str | Path) -> HumanAct12Data:
         raise DataError("the file holds no clips", path)
     P, Jt, labels = [], [], []
     for i, (p, j, y) in enumerate(zip(poses, joints, ys)):
-        p = np.asarray(p)
-        j = np.asarray(j)
+        p = _numeric_clip(p, i, "poses", path)
+        j = _numeric_clip(j, i, "joints3D", path)
         if p.ndim == 3 and p.shape[1:] == (24, 3):
             p = p.reshape(p.shape[0], 72)
         if p.ndim != 2 or p.shape[1] != 72:
@@ -98,16 +138,16 @@ def read_humanact12(path: str | Path) -> HumanAct12Data:
         if p.shape[0] != j.shape[0] or p.shape[0] == 0:
             raise DataError(f"clip {i}: poses has {p.shape[0]} frames, joints3D {j.shape[0]}",
                             path)
+        with np.errstate(over="ignore", invalid="ignore"):
+            p, j = p.astype(np.float32), j.astype(np.float32)  # as stored below
         if not (np.isfinite(p).all() and np.isfinite(j).all()):
-            raise DataError(f"clip {i}: non-finite values", path)
-        try:
-            yi = int(y)
-        except (TypeError, ValueError):
-            raise DataError(f"clip {i}: label {y!r} is not an integer", path) from None
+            raise DataError(f"clip {i}: non-finite values (or beyond float32's range)", path)
+        yi = _label(y, i, path)
         if not 0 <= yi < len(HUMANACT12_CLASSES):
-            raise DataError(f"clip {i}: label {yi} outside 0..{len(HUMANACT12_CLASSES) - 1}", path)
-        P.append(p.astype(np.float32))
-        Jt.append(j.astype(np.float32))
+            raise DataError(f"clip {i}: label {_quote(yi)} outside "
+                            f"0..{len(HUMANACT12_CLASSES) - 1}", path)
+        P.append(p)
+        Jt.append(j)
         labels.append(yi)
     fp = tree_fingerprint(path.parent, [path.name])
     return HumanAct12Data(tuple(P), tuple(Jt), np.asarray(labels, dtype=np.int64),
