@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from cli.main import main
-from repro.data import bandai
+from repro.data import bandai, cache
 from repro.data.bandai import (BANDAI2_CARD, CM_TO_M, DatasetCard, load_bandai2,
                                prepare_bandai2)
 from repro.data.bvh import Bvh, format_bvh, read_bvh
@@ -99,7 +99,7 @@ def test_card_disagreement_fails_loudly(tmp_path):
     with pytest.raises(DataError, match=r"disagrees with the toy dataset card: 8 clips \(card: 9\); "
                                         r"\d+ frames \(card: 3\)"):
         prepare_bandai2(tmp_path / "src", card=card, workers=0)
-    assert bandai.current_cache("toy") is None
+    assert cache.current_cache("toy") is None
 
 
 @pytest.mark.parametrize("mutate, message", [
@@ -141,7 +141,7 @@ def test_conversion_checks(tmp_path, mutate, message):
 def test_failed_prepare_never_removes_a_good_cache(tmp_path, monkeypatch):
     write_toy(tmp_path / "good")
     good = prepare_bandai2(tmp_path / "good", card=TOY_CARD, workers=0)
-    root = bandai.dataset_dir("toy")
+    root = cache.dataset_dir("toy")
     before = cache_listing(root)
     # 1. another source with one malformed file
     files = write_toy(tmp_path / "bad")
@@ -161,7 +161,7 @@ def test_failed_prepare_never_removes_a_good_cache(tmp_path, monkeypatch):
         return real_save(*a, **k)
 
     with monkeypatch.context() as mp:
-        mp.setattr(bandai.np, "save", failing_save)
+        mp.setattr(cache.np, "save", failing_save)
         with pytest.raises(OSError, match="simulated"):
             prepare_bandai2(tmp_path / "good", card=TOY_CARD, workers=0, force=True)
     assert cache_listing(root) == before
@@ -392,7 +392,7 @@ def test_real_bad_source_keeps_the_cache(prepared_home, monkeypatch, tmp_path, c
 
 
 def test_write_cache_keeps_a_published_cache_when_not_replacing(tmp_path):
-    from repro.data.bandai import ARRAYS, _valid_cache, write_cache
+    from repro.data.cache import ARRAYS, valid_cache, write_cache
 
     def arrays(v):
         return {k: np.full(3, v, np.float32) for k in ARRAYS}
@@ -400,7 +400,7 @@ def test_write_cache_keeps_a_published_cache_when_not_replacing(tmp_path):
     meta = {"name": "x", "fps": 30.0}
     p = write_cache(tmp_path, "key", arrays(1), meta, replace=False)
     assert write_cache(tmp_path, "key", arrays(2), meta, replace=False) == p
-    assert np.load(p / "root.npy")[0] == 1 and _valid_cache(p)["name"] == "x"
+    assert np.load(p / "root.npy")[0] == 1 and valid_cache(p)["name"] == "x"
     write_cache(tmp_path, "key", arrays(3), meta)  # replace=True (prepare --force)
     assert np.load(p / "root.npy")[0] == 3
     assert sorted(q.name for q in tmp_path.iterdir()) == ["key"]
@@ -412,7 +412,7 @@ def test_folder_source_refuses_symlinks_out_of_the_folder(tmp_path):
     prepare ends with one error naming the link, and the fingerprint ignores it."""
     import pytest
 
-    from repro.data.bandai import source_fingerprint
+    from repro.data.sources import source_fingerprint
     from repro.errors import DataError
 
     write_toy(tmp_path / "src")

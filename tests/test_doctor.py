@@ -170,7 +170,7 @@ def _swap_lengths(f):
 def test_damaged_prepared_cache_is_reported_and_kept(tmp_path, capsys, file, damage, problem):
     from test_bandai import cache_listing
 
-    from repro.data.bandai import dataset_dir
+    from repro.data.cache import dataset_dir
 
     cache = _prepare_toy_bandai2(tmp_path)
     row = _rows(capsys)["bandai2"]

@@ -2,7 +2,7 @@
 
 A 46 KB ``.tar.xz`` holding one 300 MB ``.bvh`` used ~1 GB of memory before it was refused.
 Now the tar header's ``size`` (a folder file's ``stat``) is checked against
-``bandai.MAX_MEMBER_BYTES`` / ``MAX_SOURCE_BYTES`` before a byte of the member is read.
+``sources.MAX_MEMBER_BYTES`` / ``MAX_SOURCE_BYTES`` before a byte of the member is read.
 """
 
 from __future__ import annotations
@@ -19,8 +19,9 @@ from pathlib import Path
 import pytest
 from test_bandai import TOY_CARD, cache_listing, write_toy
 
-from repro.data import bandai
+from repro.data import bandai, sources
 from repro.data.bandai import prepare_bandai2
+from repro.data.cache import dataset_dir
 from repro.errors import DataError
 
 REPO = Path(__file__).resolve().parents[1]
@@ -64,21 +65,24 @@ def toy_archive(tmp_path: Path, big: int | None = None, big_first: bool = True) 
 
 
 def test_caps_are_stated():
-    assert bandai.MAX_MEMBER_BYTES == 64 * 1024 ** 2
-    assert bandai.MAX_SOURCE_BYTES == 4 * 1024 ** 3
+    assert sources.MAX_MEMBER_BYTES == 64 * 1024 ** 2
+    assert sources.MAX_SOURCE_BYTES == 4 * 1024 ** 3
     # 100 times the largest real Bandai-2 clip (615 KB) and 8 times the whole archive (515 MB)
-    assert bandai.MAX_MEMBER_BYTES > 100 * 614_934 and bandai.MAX_SOURCE_BYTES > 8 * 514_694_070
+    assert sources.MAX_MEMBER_BYTES > 100 * 614_934 and sources.MAX_SOURCE_BYTES > 8 * 514_694_070
+    # still importable from the module that held them
+    assert (bandai.MAX_MEMBER_BYTES, bandai.MAX_SOURCE_BYTES, bandai.MAX_TAR_HEADER_BYTES) == (
+        sources.MAX_MEMBER_BYTES, sources.MAX_SOURCE_BYTES, sources.MAX_TAR_HEADER_BYTES)
 
 
 @pytest.mark.parametrize("big_first", [True, False])
 def test_member_over_the_cap_is_refused_before_it_is_read(tmp_path, monkeypatch, big_first):
     arc = toy_archive(tmp_path, big=4 * 1024 ** 2, big_first=big_first)
     assert arc.stat().st_size < 64 * 1024  # a 4 MiB member compresses to almost nothing
-    monkeypatch.setattr(bandai, "MAX_MEMBER_BYTES", 1024 ** 2)
+    monkeypatch.setattr(sources, "MAX_MEMBER_BYTES", 1024 ** 2)
     tracemalloc.start()
     try:
         with pytest.raises(DataError) as e:
-            for _ in bandai._iter_source(arc):
+            for _ in sources.iter_source(arc):
                 pass
         peak = tracemalloc.get_traced_memory()[1]
     finally:
@@ -92,12 +96,12 @@ def test_member_over_the_cap_is_refused_before_it_is_read(tmp_path, monkeypatch,
 def test_total_over_the_cap_is_refused(tmp_path, monkeypatch):
     arc = toy_archive(tmp_path)
     total = sum(m.size for m in tarfile.open(arc) if m.isfile())
-    monkeypatch.setattr(bandai, "MAX_SOURCE_BYTES", total - 1)
+    monkeypatch.setattr(sources, "MAX_SOURCE_BYTES", total - 1)
     with pytest.raises(DataError, match=r"add up to .* over the .* cap on a source "
-                                        r"\(bandai.MAX_SOURCE_BYTES\)") as e:
+                                        r"\(sources.MAX_SOURCE_BYTES\)") as e:
         prepare_bandai2(arc, card=TOY_CARD, workers=0)
     assert str(e.value).startswith(f"{arc}: the files up to dataset/")
-    monkeypatch.setattr(bandai, "MAX_SOURCE_BYTES", total)
+    monkeypatch.setattr(sources, "MAX_SOURCE_BYTES", total)
     assert prepare_bandai2(arc, card=TOY_CARD, workers=0).clips == 8  # exactly at the cap: fine
 
 
@@ -108,8 +112,8 @@ def test_members_not_read_still_count_towards_the_total(tmp_path, monkeypatch):
     with tarfile.open(arc, "w:xz") as tf:
         add_zeros(tf, "dataset/README", 3 * 1024 ** 2)
         tf.add(tmp_path / "src", arcname="dataset")
-    monkeypatch.setattr(bandai, "MAX_MEMBER_BYTES", 1024 ** 2)  # not read: no per-file cap
-    monkeypatch.setattr(bandai, "MAX_SOURCE_BYTES", 2 * 1024 ** 2)
+    monkeypatch.setattr(sources, "MAX_MEMBER_BYTES", 1024 ** 2)  # not read: no per-file cap
+    monkeypatch.setattr(sources, "MAX_SOURCE_BYTES", 2 * 1024 ** 2)
     with pytest.raises(DataError, match="the files up to dataset/README add up to 3.0 MiB"):
         prepare_bandai2(arc, card=TOY_CARD, workers=0)
 
@@ -119,7 +123,7 @@ def test_folder_file_over_the_cap_is_refused_by_stat(tmp_path, monkeypatch):
     big = tmp_path / "src" / "data" / "dataset-2_walk_active_099.bvh"
     with open(big, "wb") as f:
         f.truncate(2 * 1024 ** 2)  # sparse: nothing written
-    monkeypatch.setattr(bandai, "MAX_MEMBER_BYTES", 1024 ** 2)
+    monkeypatch.setattr(sources, "MAX_MEMBER_BYTES", 1024 ** 2)
     with pytest.raises(DataError) as e:
         prepare_bandai2(tmp_path / "src", card=TOY_CARD, workers=0)
     assert str(e.value).startswith(f"{tmp_path / 'src'}: data/{big.name} is 2.0 MiB, over the "
@@ -131,7 +135,7 @@ def test_huge_extension_header_is_refused(tmp_path, monkeypatch):
     write_toy(tmp_path / "src")
     with tarfile.open(arc, "w:xz", format=tarfile.PAX_FORMAT) as tf:
         tf.add(tmp_path / "src", arcname="dataset/" + "x" * 4000)  # names in pax headers
-    monkeypatch.setattr(bandai, "MAX_TAR_HEADER_BYTES", 1024)
+    monkeypatch.setattr(sources, "MAX_TAR_HEADER_BYTES", 1024)
     with pytest.raises(DataError, match=r"a tar extension header of .* over the .* cap"):
         prepare_bandai2(arc, card=TOY_CARD, workers=0)
 
@@ -142,7 +146,7 @@ def test_cli_300_mb_member_one_line_exit_2_cache_kept(tmp_path):
     card = dataclasses.replace(TOY_CARD, name="bandai2")
     write_toy(tmp_path / "good", card=card)
     prepare_bandai2(tmp_path / "good", card=card, workers=0)
-    root = bandai.dataset_dir("bandai2")
+    root = dataset_dir("bandai2")
     before = cache_listing(root)
     arc = tmp_path / "bomb.tar.xz"
     with tarfile.open(arc, "w:xz") as tf:
@@ -157,5 +161,5 @@ def test_cli_300_mb_member_one_line_exit_2_cache_kept(tmp_path):
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
     assert lines[0] == (f"repro: error: {arc}: {BIG} is 300.0 MiB, over the 64.0 MiB cap on "
-                        "one file (bandai.MAX_MEMBER_BYTES); not read"), lines[0]
+                        "one file (sources.MAX_MEMBER_BYTES); not read"), lines[0]
     assert cache_listing(root) == before  # the prepared cache is untouched

@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 from numpy._core.multiarray import _reconstruct
 
+from repro.data.upstream import pickle_checks
 from repro.data.upstream import restricted_pickle as rp
 from repro.data.upstream.humanact12 import read_humanact12
 from repro.data.upstream.restricted_pickle import load_restricted, loads_restricted
@@ -91,11 +92,11 @@ def test_a_size_that_fits_in_memory_is_still_not_allocated(make):
 
 
 def test_per_array_cap_is_stated_and_enforced(monkeypatch):
-    assert rp.MAX_ARRAY_BYTES == 2 * 1024 ** 3
+    assert pickle_checks.MAX_ARRAY_BYTES == rp.MAX_ARRAY_BYTES == 2 * 1024 ** 3
     a = np.zeros((64, 1024), np.float64)  # 512 KiB of real data, in the file
     raw = dumps({"a": a})
     assert loads_restricted(raw)["a"].shape == (64, 1024)
-    monkeypatch.setattr(rp, "MAX_ARRAY_BYTES", 256 * 1024)
+    monkeypatch.setattr(pickle_checks, "MAX_ARRAY_BYTES", 256 * 1024)
     with pytest.raises(DataError, match=r"over the 0.25 MiB cap on one array"):
         loads_restricted(raw, source="x.pkl")
 

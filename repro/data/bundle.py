@@ -202,7 +202,7 @@ def load_mini(folder: str | Path | None = None):
     the result is kept as a memory-mapped cache under ``datasets_root()/bandai2-mini/<key>/``
     (key: the bundle's content), so later loads are instant.  An unwritable cache is skipped.
     """
-    from repro.data.bandai import _valid_cache, dataset_dir, open_cache, write_cache
+    from repro.data.cache import dataset_dir, open_cache, valid_cache, write_cache
     from repro.keys import content_key, sha256_file
 
     d = Path(folder) if folder is not None else bundled_dir()
@@ -212,7 +212,7 @@ def load_mini(folder: str | Path | None = None):
     npz_sha = sha256_file(d / NPZ)
     fp = content_key({"dataset": MINI_NAME, "npz": npz_sha, "meta": sha256_file(d / META)})
     cache_root = dataset_dir(MINI_NAME)
-    meta = _valid_cache(cache_root / fp)
+    meta = valid_cache(cache_root / fp)
     if meta is not None:
         return open_cache(cache_root / fp, meta, MINI_NAME)
     arrays, meta = _decode_bundle(d, npz_sha)
@@ -221,7 +221,7 @@ def load_mini(folder: str | Path | None = None):
         path = write_cache(cache_root, fp, arrays, meta, replace=False)
     except OSError:
         path = None
-    if path is not None and (m := _valid_cache(path)) is not None:
+    if path is not None and (m := valid_cache(path)) is not None:
         return open_cache(path, m, MINI_NAME)
     from repro.data.clipset import ClipSet
     from repro.motion.skeleton import Skeleton
@@ -233,7 +233,7 @@ def load_mini(folder: str | Path | None = None):
 
 
 def _decode_bundle(d: Path, npz_sha: str) -> tuple[dict, dict]:
-    """Arrays in the layout of :data:`repro.data.bandai.ARRAYS` and the cache meta."""
+    """Arrays in the layout of :data:`repro.data.cache.ARRAYS` and the cache meta."""
     import roma
     import torch
 

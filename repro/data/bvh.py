@@ -40,6 +40,12 @@ _CANON = {c.lower(): c for c in CHANNEL_NAMES}
 MAX_DEPTH = 256
 
 
+#: Bounds a clip's header must keep (issue 16): 10 million frames is 3.8 days at 30 fps, and
+#: a frame time under 1 µs (a million fps) is no capture's.  Checked before anything is read.
+MAX_FRAMES = 10_000_000
+MIN_FRAME_TIME = 1e-6
+
+
 @dataclass(frozen=True, eq=False)
 class Bvh:
     """One BVH file in memory, in the file's own units.
@@ -350,7 +356,14 @@ def parse_bvh(data: bytes | str, source: str | Path = "<bvh>") -> Bvh:
     Only the small HIERARCHY block is decoded to text; the MOTION rows go to numpy as bytes.
     """
     source = str(source)
-    raw = data.encode("utf-8") if isinstance(data, str) else bytes(data)
+    if isinstance(data, str):
+        try:
+            raw = data.encode("utf-8")
+        except UnicodeEncodeError as e:  # a lone surrogate: no file holds one
+            raise DataError(f"text is not encodable as UTF-8 ({e.reason} at {e.start})",
+                            source) from None
+    else:
+        raw = bytes(data)
     if raw.startswith(b"\xef\xbb\xbf"):
         raw = raw[3:]
     if b"\r" in raw:  # CR LF (Windows) and CR-only (classic Mac) line ends read as LF
@@ -397,13 +410,17 @@ def parse_bvh(data: bytes | str, source: str | Path = "<bvh>") -> Bvh:
         raise DataError(f"Frames: {ftxt[:40]!r} is not an integer", source, frames_line) from None
     if n_frames <= 0:
         raise DataError(f"Frames: {n_frames} (a BVH clip needs at least one frame)", source, frames_line)
+    if n_frames > MAX_FRAMES:
+        raise DataError(f"Frames: {ftxt[:40]} is over the {MAX_FRAMES:,} frames a clip may have "
+                        "(bvh.MAX_FRAMES)", source, frames_line)
     ttxt, time_line = header_line("Frame Time:")
     try:
         frame_time = float(ttxt)
     except ValueError:
         raise DataError(f"Frame Time: {ttxt[:40]!r} is not a number", source, time_line) from None
-    if not (math.isfinite(frame_time) and frame_time > 0):
-        raise DataError(f"Frame Time: {ttxt!r} must be a positive number of seconds", source, time_line)
+    if not (math.isfinite(frame_time) and frame_time >= MIN_FRAME_TIME):
+        raise DataError(f"Frame Time: {ttxt[:40]!r} must be a positive number of seconds (at "
+                        f"least {MIN_FRAME_TIME:g}, bvh.MIN_FRAME_TIME)", source, time_line)
     body = memoryview(raw)[pos:]
     first_data_line = line
 

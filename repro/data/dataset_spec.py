@@ -39,10 +39,10 @@ the skeleton's conventions, the frame rate and the split::
 (metres, y up, local rotations as xyzw quaternions, joint positions by forward kinematics),
 checks that every clip shares one skeleton and frame rate, makes the split and a card (clips,
 frames, classes, styles, per-class counts and durations), and publishes the same kind of cache
-as the built-in stand-in (:func:`repro.data.bandai.write_cache`) under
+as the built-in stand-in (:func:`repro.data.cache.write_cache`) under
 ``datasets_root()/<name>/<fingerprint>/``.  An archive is read in one decompression pass and
 each clip converted as it streams.  The fingerprint hashes the spec (as validated) and the
-source (:func:`repro.data.bandai.source_fingerprint`: the archive's bytes, or a folder's file
+source (:func:`repro.data.sources.source_fingerprint`: the archive's bytes, or a folder's file
 names, sizes and contents), so editing either makes a new cache; nothing old is overwritten.
 
 Registration: ``--dataset path/to/spec.toml`` anywhere a data set is named, or a folder of
@@ -64,7 +64,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from repro.errors import ConfigError, DataError, MissingDataError, SpecError
+from repro.errors import DataError, MissingDataError, SpecError
 
 SCHEMA = 1
 #: Bump when the conversion changes: it enters the cache fingerprint.
@@ -220,14 +220,14 @@ def register_spec_path(text: str) -> str:
 def _iter_files(source: Path, pattern: str):
     """(label, bytes) of the files matching ``pattern`` (``fnmatch`` on the path inside the
     source) in a folder or tar archive, read as the built-in stand-in's are
-    (:func:`repro.data.bandai._iter_source`: one decompression pass, its size caps, no links
+    (:func:`repro.data.sources.iter_source`: one decompression pass, its size caps, no links
     out of a folder)."""
-    from repro.data.bandai import _iter_source
+    from repro.data.sources import iter_source
 
     def kind(name: str) -> str | None:
         return "clip" if fnmatch.fnmatch(name, pattern) else None
 
-    for _, label, data in _iter_source(source, kind_of=kind):
+    for _, label, data in iter_source(source, kind_of=kind):
         yield label, data
 
 
@@ -364,14 +364,14 @@ def _card(spec: DatasetSpec, classes, styles, labels, lengths, fps) -> dict:
 
 def prepare_dataset(spec_path: str | Path, *, force: bool = False):
     """Prepare the data set a spec file describes (module docstring); returns a
-    :class:`repro.data.bandai.PrepareResult`.  A cache of the same fingerprint is reused."""
+    :class:`repro.data.cache.PrepareResult`.  A cache of the same fingerprint is reused."""
     import hashlib
     import time
 
     from filelock import FileLock
 
-    from repro.data.bandai import (POINTER, PrepareResult, _valid_cache, _write_json_atomic,
-                                   dataset_dir, write_cache)
+    from repro.data.cache import (POINTER, PrepareResult, dataset_dir, valid_cache, write_cache,
+                                  write_json_atomic)
     from repro.data.splits import stratified_split
     from repro.keys import content_key
     from repro.motion.resample import resample_clip
@@ -399,7 +399,7 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
         asf_bytes = asf_path.read_bytes()
         digest.update(b"asf\0" + hashlib.sha256(asf_bytes).digest())
         asf = asf_amc.parse_asf(asf_bytes, asf_path)
-    from repro.data.bandai import source_fingerprint
+    from repro.data.sources import source_fingerprint
 
     if spec.labels.file:  # a side file of labels is part of what the data set is
         side = here / spec.labels.file
@@ -414,9 +414,9 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
     root = dataset_dir(spec.name)
     root.mkdir(parents=True, exist_ok=True)
     with FileLock(str(root / ".lock")):
-        meta = None if force else _valid_cache(root / fp)
+        meta = None if force else valid_cache(root / fp)
         if meta is not None:
-            _write_json_atomic(root / POINTER, {"fingerprint": fp, "source": str(spec_path)})
+            write_json_atomic(root / POINTER, {"fingerprint": fp, "source": str(spec_path)})
             return PrepareResult(root / fp, fp, True, time.perf_counter() - t0,
                                  len(meta["clip_names"]), int(meta["stats"]["frames"]))
         sk = spec.skeleton
@@ -482,6 +482,6 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
                 "stats": {"clips": len(stems), "frames": int(lengths.sum())},
                 "repro_version": __version__, "dataset_spec_version": PREPARE_VERSION}
         write_cache(root, fp, arrays, meta)
-        _write_json_atomic(root / POINTER, {"fingerprint": fp, "source": str(spec_path)})
+        write_json_atomic(root / POINTER, {"fingerprint": fp, "source": str(spec_path)})
     return PrepareResult(root / fp, fp, False, time.perf_counter() - t0, len(stems),
                          int(lengths.sum()))

@@ -66,7 +66,8 @@ class DatasetEntry:
 
 # ------------------------------------------------------------------------ the stand-ins
 def _bandai2_status() -> DatasetStatus:
-    from repro.data.bandai import current_cache, dataset_dir, prepare_command
+    from repro.data.bandai import prepare_command
+    from repro.data.cache import current_cache, dataset_dir
 
     found = current_cache("bandai2")
     if found is not None:
@@ -89,7 +90,7 @@ def _load_bandai2():
 
 
 def _bandai2_validate() -> str | None:
-    from repro.data.bandai import prepared_problem
+    from repro.data.cache import prepared_problem
 
     return prepared_problem("bandai2")
 
@@ -123,7 +124,6 @@ def _mini_validate() -> str | None:
     import json
     import zipfile
 
-    from repro.data.bandai import cache_problem, dataset_dir
     from repro.data.bundle import (
         META,
         MINI_NAME,
@@ -132,6 +132,7 @@ def _mini_validate() -> str | None:
         bundled_dir,
         mini_available,
     )
+    from repro.data.cache import cache_problem, dataset_dir
     from repro.keys import content_key, sha256_file
 
     d = bundled_dir()
@@ -199,7 +200,7 @@ def builtin_names() -> set[str]:
 
 
 def _spec_status(name: str, path) -> DatasetStatus:
-    from repro.data.bandai import current_cache, dataset_dir
+    from repro.data.cache import current_cache, dataset_dir
 
     found = current_cache(name)
     if found is not None:
@@ -209,7 +210,7 @@ def _spec_status(name: str, path) -> DatasetStatus:
 
 
 def _spec_load(name: str, path):
-    from repro.data.bandai import current_cache, open_cache
+    from repro.data.cache import current_cache, open_cache
 
     found = current_cache(name)
     if found is None:
@@ -227,7 +228,7 @@ def _spec_entries() -> list[DatasetEntry]:
     out = []
     for path in spec_files():
         spec = load_dataset_spec(path)
-        from repro.data.bandai import prepared_problem
+        from repro.data.cache import prepared_problem
 
         out.append(DatasetEntry(spec.name, spec.description or f"declared in {path}", False,
                                 partial(_spec_status, spec.name, path),

@@ -1048,7 +1048,7 @@ def load_view(name: str) -> SequenceSet:
 
 def view_dir(name: str):
     """Folder of a prepared view: ``datasets_root()/<name>/``."""
-    from repro.data.bandai import dataset_dir
+    from repro.data.cache import dataset_dir
 
     _check_view(name)
     return dataset_dir(name)

@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import math
 import re
 import tomllib
 import types
@@ -63,7 +64,29 @@ def read_toml(path: Path) -> dict[str, Any]:
         raise SpecError(f"TOML syntax error: {msg}", path) from None
     if _depth(parsed) > MAX_DEPTH:
         raise SpecError(f"nested more than {MAX_DEPTH} levels deep (no spec needs that)", path)
+    where = _non_finite(parsed)
+    if where is not None:
+        raise SpecError("nan and inf are not allowed (no spec value is one; the key recipe "
+                        "cannot hash them)", path, where)
     return parsed
+
+
+def _non_finite(value, at: str = "") -> str | None:
+    """The dotted location of the first NaN or infinity in parsed TOML, or None."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return at or "(top level)"
+    if isinstance(value, dict):
+        items = value.items()
+    elif isinstance(value, list):
+        items = ((f"[{i}]", v) for i, v in enumerate(value))
+    else:
+        return None
+    for k, v in items:
+        sub = f"{at}{k}" if str(k).startswith("[") else (f"{at}.{k}" if at else str(k))
+        found = _non_finite(v, sub)
+        if found is not None:
+            return found
+    return None
 
 
 #: deepest nesting of tables and arrays a spec or scale file may have (real ones use about 5);
