@@ -74,6 +74,9 @@ ENV = "REPRO_DATASETS"
 #: how far (metres) clips' OFFSETs, or a joint's position channels from its OFFSET, may differ
 #: and still be one skeleton (the built-in stand-in's 1e-3 cm)
 POSITION_TOL_M = 1e-5
+#: relative difference of frame rates that are one rate: files print their frame time rounded
+#: (``0.008333`` is 120.005 fps)
+FPS_RTOL = 1e-3
 
 
 class _Strict(BaseModel):
@@ -179,23 +182,49 @@ def load_dataset_spec(path: str | Path) -> DatasetSpec:
 
 
 # ------------------------------------------------------------------------ registration
-def spec_files() -> list[Path]:
-    """Spec files of the folders in ``$REPRO_DATASETS``, sorted."""
-    out: list[Path] = []
-    for folder in filter(None, os.environ.get(ENV, "").split(os.pathsep)):
-        out += sorted(Path(folder).glob("*.toml"))
-    return out
+def spec_files() -> tuple[list[Path], list[Path]]:
+    """(files named in ``$REPRO_DATASETS``, ``*.toml`` of the folders named there), sorted.
+    A named file must be a valid spec; a folder's other files may be anything (only the
+    valid specs among them are registered)."""
+    named: list[Path] = []
+    found: list[Path] = []
+    for item in filter(None, os.environ.get(ENV, "").split(os.pathsep)):
+        p = Path(item)
+        if p.is_dir():
+            found += sorted(p.glob("*.toml"))
+        else:
+            named.append(p)
+    return named, found
+
+
+def declared_specs() -> tuple[dict[str, Path], list[str]]:
+    """{name: spec file} of every registered spec, and the problems of folder files skipped
+    (not data-set specs, or invalid).  Two files declaring one name is a ConfigError naming
+    both; so is a named file that is not a valid spec."""
+    from repro.errors import ConfigError
+
+    named, found = spec_files()
+    out: dict[str, Path] = {}
+    skipped: list[str] = []
+    for path, must in [(p, True) for p in named] + [(p, False) for p in found]:
+        try:
+            spec = load_dataset_spec(path)
+        except SpecError as e:
+            if must:
+                raise
+            skipped.append(str(e))
+            continue
+        other = out.get(spec.name)
+        if other is not None and other.resolve() != path.resolve():
+            raise ConfigError(f"data set {spec.name!r} is declared by two spec files: {other} "
+                              f"and {path}")
+        out[spec.name] = path
+    return out, skipped
 
 
 def spec_file_of(name: str) -> Path | None:
-    """The spec file in ``$REPRO_DATASETS`` that declares ``name``, if any."""
-    for path in spec_files():
-        try:
-            if load_dataset_spec(path).name == name:
-                return path
-        except SpecError:
-            continue
-    return None
+    """The registered spec file that declares ``name``, if any."""
+    return declared_specs()[0].get(name)
 
 
 def is_spec_path(text: str) -> bool:
@@ -203,17 +232,60 @@ def is_spec_path(text: str) -> bool:
 
 
 def register_spec_path(text: str) -> str:
-    """Register the spec file ``text`` for this process and its children (``$REPRO_DATASETS``
-    holds folders, so the file's folder joins it); returns the data set's name."""
+    """Register the spec file ``text`` for this process and the job processes it starts (its
+    path joins ``$REPRO_DATASETS``); returns the data set's name."""
     path = Path(text).resolve()
     spec = load_dataset_spec(path)
-    folders = [f for f in os.environ.get(ENV, "").split(os.pathsep) if f]
-    if str(path.parent) not in folders:
-        os.environ[ENV] = os.pathsep.join(folders + [str(path.parent)])
+    items = [f for f in os.environ.get(ENV, "").split(os.pathsep) if f]
+    if str(path) not in items:
+        os.environ[ENV] = os.pathsep.join(items + [str(path)])
     from repro.data import registry
 
     registry.reset()
     return spec.name
+
+
+def spec_key(spec: DatasetSpec, spec_path: Path) -> str:
+    """What a prepared copy must have been made from, cheap to recompute on every load: the
+    validated spec less its words (description, license, credit), the labels side file's
+    bytes, and the source's size and modification time (its bytes enter the fingerprint at
+    prepare time)."""
+    import hashlib
+
+    from repro.keys import content_key
+
+    here = Path(spec_path).resolve().parent
+    side = here / spec.labels.file if spec.labels.file else None
+    src = here / spec.source.path
+    try:
+        st = src.stat()
+        src_state = [st.st_size, st.st_mtime_ns] if src.is_file() else sorted(
+            [q.relative_to(src).as_posix(), q.stat().st_size, q.stat().st_mtime_ns]
+            for q in src.rglob("*") if q.is_file())
+    except OSError:
+        src_state = None
+    return content_key({
+        "spec": spec.model_dump(mode="json", by_alias=True,
+                                exclude={"description", "license", "credit"}),
+        "labels": hashlib.sha256(side.read_bytes()).hexdigest() if side and side.is_file()
+        else None,
+        "source": src_state})
+
+
+def check_current(name: str, spec_path: Path, pointer: dict) -> str | None:
+    """Why the prepared copy ``pointer`` (current.json) is not the one ``spec_path``
+    describes now, or None."""
+    try:
+        spec = load_dataset_spec(spec_path)
+    except SpecError as e:
+        return str(e)
+    if pointer.get("spec_file") != str(Path(spec_path).resolve()):
+        made_from = pointer.get("spec_file") or "another spec file"
+        return f"data set {name!r} was prepared from {made_from}, not {spec_path}"
+    if pointer.get("spec_key") != spec_key(spec, spec_path):
+        return (f"{spec_path}, its labels file or its source changed since data set {name!r} "
+                "was prepared")
+    return None
 
 
 # ------------------------------------------------------------------------ reading files
@@ -272,51 +344,87 @@ def _convert_amc(label: str, data: bytes, asf, sk: SkeletonSpec, fps: float | No
     from repro.motion.rotations import matrix_to_quat
 
     amc = asf_amc.parse_amc(data, label, asf)
+    # the ASF's own ':units length' first (CMU's 0.45: lengths in inches), then the spec's units
     skel, root, rotmats, rate = asf_amc.to_skeleton_motion(
-        asf, amc, length_scale=1.0, **({} if fps is None else {"fps": fps}))
+        asf, amc, **({} if fps is None else {"fps": fps}))
     quats = np.asarray(matrix_to_quat(np.asarray(rotmats)), np.float64)
     return {"names": list(skel.names), "parents": list(skel.parents),
             "offsets": np.asarray(skel.offsets, np.float64), "quats": quats, "root": root,
             "fps": float(rate), "label": label}
 
 
+def _name(v, what: str, clip: str, where) -> str | None:
+    """A label value as a non-empty name (``None`` stays None: no style)."""
+    if v is None:
+        return None
+    if not isinstance(v, str) or not v.strip():
+        raise DataError(f"clip {clip!r}: {what} must be a non-empty name, got {v!r:.60}", where)
+    return v.strip()
+
+
+def _side_table(lab: LabelSpec, side: Path) -> dict[str, tuple]:
+    """clip -> (action, style) of a CSV or JSON labels file (duplicates refused)."""
+    try:
+        text = side.read_text(encoding="utf-8-sig")  # a spreadsheet's BOM is no header
+    except OSError as e:
+        raise MissingDataError(f"cannot read the labels file ({e.strerror})", side) from None
+    except UnicodeDecodeError as e:
+        raise DataError(f"the labels file is not UTF-8 text (byte {e.start})", side) from None
+    table: dict[str, tuple] = {}
+
+    def put(clip, action, style, where: str) -> None:
+        clip = _name(clip, "the clip name", str(clip), side)
+        if clip in table:
+            raise DataError(f"clip {clip!r} is labelled twice ({where})", side)
+        table[clip] = (_name(action, "action", clip, side), _name(style, "style", clip, side))
+
+    if lab.from_ == "csv":
+        reader = csv.DictReader(io.StringIO(text))
+        reader.fieldnames = [f.strip() for f in reader.fieldnames or []]
+        if not {"clip", "action"} <= set(reader.fieldnames):
+            raise DataError("a labels CSV needs a header row with columns clip, action[, style]"
+                            f" (found {reader.fieldnames})", side)
+        for n, r in enumerate(reader, start=2):
+            put(r.get("clip"), r.get("action"), r.get("style") or None, f"line {n}")
+        return table
+    try:
+        raw = json.loads(text)
+    except ValueError as e:
+        raise DataError(f"not JSON ({e})", side) from None
+    if not isinstance(raw, dict):
+        raise DataError("labels JSON must map clip -> action or {action, style}", side)
+    for k, v in raw.items():
+        if isinstance(v, dict):
+            put(k, v.get("action"), v.get("style"), f"key {k!r}")
+        else:
+            put(k, v, None, f"key {k!r}")
+    return table
+
+
 def _labels_for(spec: DatasetSpec, spec_dir: Path, stems: list[str]):
-    """(labels, styles, class names, style names) of the clips ``stems``."""
+    """(labels, styles, class names, style names) of the clips ``stems`` (every name checked:
+    a non-empty string, each clip labelled once, classes and styles unique and used)."""
     lab = spec.labels
     got: dict[str, tuple[str, str | None]] = {}
+    where = spec_dir / (lab.file or spec.source.path)
     if lab.from_ == "filename":
         rx = re.compile(lab.pattern)
         for s in stems:
             m = rx.search(s)
-            if m is None:
+            if m is None or m.group("action") is None:
                 raise DataError(f"file name {s!r} does not match the labels pattern "
-                                f"{lab.pattern!r}", spec_dir / spec.source.path)
-            style = m.groupdict().get("style")
-            got[s] = (m.group("action"), style)
+                                f"{lab.pattern!r}", where)
+            got[s] = (_name(m.group("action"), "action", s, where),
+                      _name(m.groupdict().get("style"), "style", s, where))
     else:
-        side = spec_dir / lab.file
-        try:
-            text = side.read_text(encoding="utf-8")
-        except OSError as e:
-            raise MissingDataError(f"cannot read the labels file ({e.strerror})", side) from None
-        if lab.from_ == "csv":
-            rows = list(csv.DictReader(io.StringIO(text)))
-            if not rows or not {"clip", "action"} <= set(rows[0]):
-                raise DataError("a labels CSV needs a header with columns clip, action[, style]",
-                                side)
-            table = {r["clip"]: (r["action"], r.get("style") or None) for r in rows}
-        else:
-            try:
-                raw = json.loads(text)
-                table = {k: ((v, None) if isinstance(v, str) else (v["action"], v.get("style")))
-                         for k, v in raw.items()}
-            except (ValueError, AttributeError, KeyError, TypeError) as e:
-                raise DataError(f"labels JSON must map clip -> action or {{action, style}} "
-                                f"({type(e).__name__})", side) from None
+        table = _side_table(lab, where)
         for s in stems:
             if s not in table:
-                raise DataError(f"clip {s!r} has no label", side)
+                raise DataError(f"clip {s!r} has no label", where)
             got[s] = table[s]
+    for what, given in (("classes", lab.classes), ("styles", lab.styles)):
+        if given is not None and len(set(given)) != len(given):
+            raise DataError(f"[labels] {what} repeats a name: {given}", spec_dir)
     classes = list(lab.classes) if lab.classes else sorted({a for a, _ in got.values()})
     style_vals = {st for _, st in got.values() if st is not None}
     styles = list(lab.styles) if lab.styles else sorted(style_vals)
@@ -326,12 +434,15 @@ def _labels_for(spec: DatasetSpec, spec_dir: Path, stems: list[str]):
         a, st = got[s]
         if a not in cidx:
             raise DataError(f"clip {s!r}: action {a!r} is not one of the classes {classes}",
-                            spec_dir / (lab.file or spec.source.path))
+                            where)
         if st is not None and st not in sidx:
-            raise DataError(f"clip {s!r}: style {st!r} is not one of {styles}",
-                            spec_dir / (lab.file or spec.source.path))
+            raise DataError(f"clip {s!r}: style {st!r} is not one of {styles}", where)
         labels.append(cidx[a])
         style_ids.append(-1 if st is None else sidx[st])
+    unused = [c for c in classes if c not in {got[s][0] for s in stems}]
+    if unused:
+        raise DataError(f"class(es) {unused} have no clip (remove them from [labels] classes)",
+                        where)
     return (np.array(labels, np.int64), np.array(style_ids, np.int64), classes,
             styles if style_vals else [])
 
@@ -408,15 +519,19 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
 
     # the source is named by its bytes (as the built-in stand-in's), the spec by its content
     src_fp = source_fingerprint(source)
+    pointer = {"fingerprint": None, "source": str(spec_path),
+               "spec_file": str(spec_path.resolve()), "spec_key": spec_key(spec, spec_path)}
     fp = content_key({"kind": "dataset_spec", "version": PREPARE_VERSION,
-                      "spec": spec.model_dump(mode="json", by_alias=True),
+                      "spec": spec.model_dump(mode="json", by_alias=True,
+                                              exclude={"description", "license", "credit"}),
                       "source": src_fp, "asf": digest.hexdigest()})
+    pointer["fingerprint"] = fp
     root = dataset_dir(spec.name)
     root.mkdir(parents=True, exist_ok=True)
     with FileLock(str(root / ".lock")):
         meta = None if force else valid_cache(root / fp)
         if meta is not None:
-            write_json_atomic(root / POINTER, {"fingerprint": fp, "source": str(spec_path)})
+            write_json_atomic(root / POINTER, pointer)
             return PrepareResult(root / fp, fp, True, time.perf_counter() - t0,
                                  len(meta["clip_names"]), int(meta["stats"]["frames"]))
         sk = spec.skeleton
@@ -434,13 +549,15 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
             if np.abs(c["offsets"] - first["offsets"]).max() * sk.scale > POSITION_TOL_M:
                 raise DataError(f"OFFSETs differ from {first['label']}'s; one skeleton per data "
                                 "set is required", c["label"])
-            if abs(c["fps"] - first["fps"]) > 1e-3:
+            if abs(c["fps"] - first["fps"]) > FPS_RTOL * first["fps"]:
                 raise DataError(f"{c['fps']:g} fps, {first['label']} has {first['fps']:g}",
                                 c["label"])
         fps = round(first["fps"], 3)
-        if spec.frames.fps is not None and abs(spec.frames.fps - fps) > 1e-3:
-            raise DataError(f"the files run at {fps:g} fps, the spec says {spec.frames.fps:g}",
-                            source)
+        if spec.frames.fps is not None:
+            if abs(spec.frames.fps - first["fps"]) > FPS_RTOL * spec.frames.fps:
+                raise DataError(f"the files run at {first['fps']:g} fps, the spec says "
+                                f"{spec.frames.fps:g}", source)
+            fps = float(spec.frames.fps)  # a printed frame time (0.008333) is a rounded 1/fps
         skel = Skeleton(tuple(first["names"]), tuple(first["parents"]),
                         first["offsets"] * sk.scale)
         for c in clips:
@@ -454,8 +571,20 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
             fps = float(spec.frames.resample_to)
         order = sorted(range(len(clips)), key=lambda i: clips[i]["label"])
         stems = [Path(clips[i]["label"]).stem for i in order]
-        if len(set(stems)) != len(stems):
-            raise DataError("two clips share a file name (clip names must be unique)", source)
+        seen: dict[str, str] = {}
+        for i, st in zip(order, stems):
+            if st in seen:
+                raise DataError(f"two clips share the name {st!r}: {seen[st]} and "
+                                f"{clips[i]['label']} (clip names must be unique)", source)
+            seen[st] = clips[i]["label"]
+        from repro.motion.heading import body_frame
+
+        try:  # every protocol finds the body's heading from the hips, by name
+            body_frame(skel)
+        except ValueError as e:
+            raise DataError(f"{e} (the harness finds the hips by joint names such as "
+                            "LeftUpLeg / UpperLeg_L / l_hip; rename them in the files)",
+                            spec_path) from None
         labels, styles, classes, style_names = _labels_for(spec, here, stems)
         quats = [clips[i]["quats"].astype(np.float32) for i in order]
         roots = [clips[i]["root"].astype(np.float32) for i in order]
@@ -466,6 +595,11 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
         starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
         split = stratified_split(labels, styles, test_fraction=spec.split.test_fraction,
                                  seed=spec.split.seed)
+        bare = [classes[c] for c in range(len(classes)) if not ((labels == c) & (split == 0)).any()]
+        if bare:
+            raise DataError(f"class(es) {', '.join(map(repr, bare))} have no training clip after "
+                            f"the split (test_fraction {spec.split.test_fraction}); add clips or "
+                            "lower test_fraction", spec_path)
         arrays = {"rotations": np.concatenate(quats), "root": np.concatenate(roots),
                   "joints": np.concatenate(joints), "starts": starts, "lengths": lengths,
                   "labels": labels, "styles": styles, "split": split}
@@ -482,6 +616,6 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
                 "stats": {"clips": len(stems), "frames": int(lengths.sum())},
                 "repro_version": __version__, "dataset_spec_version": PREPARE_VERSION}
         write_cache(root, fp, arrays, meta)
-        write_json_atomic(root / POINTER, {"fingerprint": fp, "source": str(spec_path)})
+        write_json_atomic(root / POINTER, pointer)
     return PrepareResult(root / fp, fp, False, time.perf_counter() - t0, len(stems),
                          int(lengths.sum()))

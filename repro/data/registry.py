@@ -195,45 +195,65 @@ def builtin_names() -> set[str]:
     """Names a user's data-set spec may not take: the stand-ins, their sequence views and the
     papers' data sets."""
     from repro.data.sequences import SEQUENCE_VIEWS
+    from repro.specs.names import DATASETS as KNOWN
 
-    return {e.name for e in _builtin_entries() + _upstream_entries()} | set(SEQUENCE_VIEWS)
-
-
-def _spec_status(name: str, path) -> DatasetStatus:
-    from repro.data.cache import current_cache, dataset_dir
-
-    found = current_cache(name)
-    if found is not None:
-        return DatasetStatus(True, str(found[0]), found[1]["fingerprint"], None)
-    return DatasetStatus(False, str(dataset_dir(name)), None,
-                         f"not prepared; run: repro data prepare {path}")
+    return ({e.name for e in _builtin_entries() + _upstream_entries()} | set(SEQUENCE_VIEWS)
+            | set(KNOWN))
 
 
-def _spec_load(name: str, path):
-    from repro.data.cache import current_cache, open_cache
+def _spec_current(name: str, path):
+    """(folder, meta) of the prepared copy of a declared data set, or (None, why not)."""
+    import json
+
+    from repro.data.cache import POINTER, current_cache, dataset_dir
+    from repro.data.dataset_spec import check_current
 
     found = current_cache(name)
     if found is None:
-        raise MissingDataError(f"data set {name!r} is not prepared; run: repro data prepare "
-                               f"{path}")
+        return None, f"not prepared; run: repro data prepare {path}"
+    try:
+        pointer = json.loads((dataset_dir(name) / POINTER).read_text())
+    except (OSError, ValueError):
+        pointer = {}
+    why = check_current(name, path, pointer)
+    if why is not None:
+        return None, f"{why}; run: repro data prepare {path}"
+    return found, None
+
+
+def _spec_status(name: str, path) -> DatasetStatus:
+    from repro.data.cache import dataset_dir
+
+    found, why = _spec_current(name, path)
+    if found is None:
+        return DatasetStatus(False, str(dataset_dir(name)), None, why)
+    return DatasetStatus(True, str(found[0]), found[1]["fingerprint"], None)
+
+
+def _spec_load(name: str, path):
+    from repro.data.cache import open_cache
+
+    found, why = _spec_current(name, path)
+    if found is None:
+        raise MissingDataError(f"data set {name!r}: {why}")
     return open_cache(found[0], found[1], name)
 
 
 def _spec_entries() -> list[DatasetEntry]:
-    """The data sets of the spec files in ``$REPRO_DATASETS`` (repro.data.dataset_spec)."""
+    """The data sets of the spec files registered in ``$REPRO_DATASETS``
+    (:mod:`repro.data.dataset_spec`)."""
     from functools import partial
 
-    from repro.data.dataset_spec import load_dataset_spec, spec_files
+    from repro.data.cache import prepared_problem
+    from repro.data.dataset_spec import declared_specs, load_dataset_spec
 
     out = []
-    for path in spec_files():
+    for name, path in declared_specs()[0].items():
         spec = load_dataset_spec(path)
-        from repro.data.cache import prepared_problem
-
-        out.append(DatasetEntry(spec.name, spec.description or f"declared in {path}", False,
-                                partial(_spec_status, spec.name, path),
-                                partial(_spec_load, spec.name, path),
-                                partial(prepared_problem, spec.name,
+        out.append(DatasetEntry(name, spec.description or f"declared in {path}", False,
+                                partial(_spec_status, name, path),
+                                partial(_spec_load, name, path),
+                                partial(prepared_problem, name,
                                         f"repro data prepare {path} --force")))
     return out
 
@@ -244,10 +264,7 @@ def _build() -> dict[str, DatasetEntry]:
         if e.name in out:
             raise RuntimeError(f"data set {e.name!r} is registered twice")
         out[e.name] = e
-    for e in _spec_entries():
-        if e.name in out:
-            raise ConfigError(f"data set {e.name!r} is declared by two spec files in "
-                              "$REPRO_DATASETS")
+    for e in _spec_entries():  # names of built-ins are refused by the spec loader
         out[e.name] = e
     return out
 
