@@ -120,31 +120,29 @@ def bvh_text(skeleton, root, rotmats, fps, *, precision: int = 6, **kw) -> str:
 def bvh_of(skeleton, root, rotmats, fps, *, order: str = "ZXY", units: str = "cm",
            dummy_root: str | None = None, precision: int = 6) -> Bvh:
     """The :class:`~repro.data.bvh.Bvh` of a motion, numbers rounded to ``precision``
-    (module docstring for the conventions; :func:`repro.data.bvh.bvh_from_motion` is the
-    lower-level builder without these conventions).
+    (module docstring for the conventions): :func:`repro.data.bvh.bvh_from_motion` builds it,
+    then the root offset, the dummy root and the rounding are applied.
 
     ``skeleton``: :class:`repro.motion.skeleton.Skeleton` (offsets in metres); ``root``: (T, 3)
     root translation in metres; ``rotmats``: (T, J, 3, 3) local rotation matrices (numpy or
     torch); ``fps``: frames per second.
     """
-    from repro.motion.rotations import matrix_to_euler
+    from repro.data.bvh import bvh_from_motion
 
     R, t, fps = _validate(skeleton, root, rotmats, fps, order, units)
     if not (isinstance(precision, int) and 0 <= precision <= 17):
         raise ValueError(f"precision must be an integer from 0 to 17, got {precision!r}")
-    scale = UNITS[units]
     T, J = R.shape[0], R.shape[1]
     rot = tuple(f"{a}rotation" for a in order)
-    names, parents = list(skeleton.names), list(skeleton.parents)
-    offsets = np.asarray(skeleton.offsets, np.float64) * scale
+    leaves = sorted(set(range(J)) - set(skeleton.parents))
+    base = bvh_from_motion(skeleton, R, t, fps, order=order, scale=UNITS[units],
+                           end_sites=[(j, np.asarray(skeleton.offsets[j]) * END_SITE_FRACTION)
+                                      for j in leaves])
+    names, parents = list(base.names), list(base.parents)
+    offsets = np.array(base.offsets, np.float64)
     offsets[0] = 0.0  # the root's position is all in its channels (module docstring)
-    channels = [_POS + rot] + [rot] * (J - 1)
-    angles = matrix_to_euler(R, order, degrees=True).reshape(T, 3 * J)
-    motion = np.concatenate([t * scale, angles], axis=1)
-
-    leaves = sorted(set(range(J)) - set(parents))
-    end_parents = list(leaves)
-    end_offsets = [offsets[j] * END_SITE_FRACTION for j in leaves]
+    channels, motion = list(base.channels), base.motion
+    end_parents, end_offsets = list(base.end_parents), base.end_offsets
 
     if dummy_root is not None:
         _check_name(dummy_root, "dummy_root")

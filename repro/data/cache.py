@@ -82,17 +82,12 @@ def _publish(tmp: Path, final: Path) -> None:
 
 
 def write_json_atomic(path: Path, obj) -> None:
-    """Write ``obj`` as JSON to ``path`` through a temporary file and a rename (used for
-    :data:`POINTER`)."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            json.dump(obj, fh, indent=1, sort_keys=True)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """Write ``obj`` as JSON to ``path`` atomically (:func:`repro.store.atomic.
+    atomic_write_bytes`; used for :data:`POINTER`)."""
+    from repro.store.atomic import atomic_write_bytes
+
+    atomic_write_bytes(path, json.dumps(obj, indent=1, sort_keys=True).encode("utf-8"),
+                       mode=0o644)
 
 
 def valid_cache(path: Path) -> dict | None:

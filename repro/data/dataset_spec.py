@@ -197,14 +197,14 @@ def spec_files() -> tuple[list[Path], list[Path]]:
     return named, found
 
 
-def declared_specs() -> tuple[dict[str, Path], list[str]]:
-    """{name: spec file} of every registered spec, and the problems of folder files skipped
+def declared_specs() -> tuple[dict[str, tuple[Path, DatasetSpec]], list[str]]:
+    """{name: (spec file, spec)} of every registered spec, and the problems of folder files skipped
     (not data-set specs, or invalid).  Two files declaring one name is a ConfigError naming
     both; so is a named file that is not a valid spec."""
     from repro.errors import ConfigError
 
     named, found = spec_files()
-    out: dict[str, Path] = {}
+    out: dict[str, tuple[Path, DatasetSpec]] = {}
     skipped: list[str] = []
     for path, must in [(p, True) for p in named] + [(p, False) for p in found]:
         try:
@@ -215,16 +215,17 @@ def declared_specs() -> tuple[dict[str, Path], list[str]]:
             skipped.append(str(e))
             continue
         other = out.get(spec.name)
-        if other is not None and other.resolve() != path.resolve():
-            raise ConfigError(f"data set {spec.name!r} is declared by two spec files: {other} "
-                              f"and {path}")
-        out[spec.name] = path
+        if other is not None and other[0].resolve() != path.resolve():
+            raise ConfigError(f"data set {spec.name!r} is declared by two spec files: "
+                              f"{other[0]} and {path}")
+        out[spec.name] = (path, spec)
     return out, skipped
 
 
 def spec_file_of(name: str) -> Path | None:
     """The registered spec file that declares ``name``, if any."""
-    return declared_specs()[0].get(name)
+    found = declared_specs()[0].get(name)
+    return None if found is None else found[0]
 
 
 def is_spec_path(text: str) -> bool:

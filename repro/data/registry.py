@@ -245,11 +245,10 @@ def _spec_entries() -> list[DatasetEntry]:
     from functools import partial
 
     from repro.data.cache import prepared_problem
-    from repro.data.dataset_spec import declared_specs, load_dataset_spec
+    from repro.data.dataset_spec import declared_specs
 
     out = []
-    for name, path in declared_specs()[0].items():
-        spec = load_dataset_spec(path)
+    for name, (path, spec) in declared_specs()[0].items():
         out.append(DatasetEntry(name, spec.description or f"declared in {path}", False,
                                 partial(_spec_status, name, path),
                                 partial(_spec_load, name, path),

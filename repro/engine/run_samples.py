@@ -153,20 +153,16 @@ def run_samples(table: str, *, scale: str = "quick", dataset: str | None = None,
                 run: str | Path | None = None) -> RunSamples:
     """The samples behind a run of ``table`` (the newest finished plain run at ``scale`` by
     default; ``run``: an id, a prefix or a folder).  ConfigError when there is no run."""
-    from repro.engine.runner import _scale, _spec, latest_run
+    from repro.engine.runner import _scale, _spec, table_run
     from repro.engine.tables import build_plan
-    from repro.store.runs import read_run_json, resolve_run
+    from repro.store.runs import read_run_json
 
     spec = _spec(table)
-    if run is not None:
-        path = Path(run) if isinstance(run, Path) or Path(str(run)).is_dir() else \
-            resolve_run(str(run))
-    else:
+    path = table_run(spec, scale, dataset, run)
+    if path is None:
         sc = _scale(scale, dataset)
-        path = latest_run(spec.id, sc.name, dataset or sc.dataset_for(spec))
-        if path is None:
-            raise ConfigError(f"{spec.id}: no finished run at scale {sc.name}; run: "
-                              f"repro run {spec.id} --scale {sc.name}")
+        raise ConfigError(f"{spec.id}: no finished run at scale {sc.name}; run: "
+                          f"repro run {spec.id} --scale {sc.name}")
     rj = read_run_json(path)
     if rj.get("table") != spec.id:
         raise ConfigError(f"run {path.name} is of {rj.get('table')!r}, not {spec.id!r}")

@@ -323,15 +323,27 @@ def latest_run(table: str, scale: str | None = None, dataset: str | None = None,
     return None
 
 
+def table_run(spec, scale: str = "quick", dataset: str | None = None,
+              run: str | Path | None = None) -> Path | None:
+    """The run folder of a table: ``run`` (an id, a prefix or a folder) or the newest finished
+    plain run at ``scale`` on ``dataset`` (the profile's or the spec's), None when there is none."""
+    from repro.store.runs import resolve_run
+
+    if run is not None:
+        return Path(run) if isinstance(run, Path) or Path(str(run)).is_dir() else \
+            resolve_run(str(run))
+    sc = _scale(scale, dataset)
+    return latest_run(spec.id, sc.name, dataset or sc.dataset_for(spec))
+
+
 def table_view(name: str, *, scale: str = "quick", dataset: str | None = None, run: str | None = None):
     """The view of a table: from a run (the newest finished one by default) or, when there is
     none, the paper's values beside "not run" cells."""
     from repro.engine.tables import build_plan, make_view, unbuilt_columns
-    from repro.store.runs import resolve_run
 
     spec = _spec(name)
     sc = _scale(scale, dataset)
-    path = resolve_run(run) if run else latest_run(spec.id, sc.name, dataset or sc.dataset_for(spec))
+    path = table_run(spec, scale, dataset, run or None)
     if path is not None:
         summary = json.loads((path / "summary.json").read_text())
         rj = json.loads((path / "run.json").read_text())

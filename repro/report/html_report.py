@@ -100,7 +100,7 @@ def _claims_html(view) -> list[str]:
     return out
 
 
-def provenance(run_path: Path | None, rj: dict | None, view) -> list[tuple[str, str]]:
+def provenance(rj: dict | None, view) -> list[tuple[str, str]]:
     """(field, value) pairs saying what made the numbers."""
     if rj is None:
         return [("run", "none: this table has not been run at this scale")]
@@ -141,19 +141,6 @@ def _drawn_by() -> str:
         " + uncommitted changes" if g.get("dirty") else "")
 
 
-def _run_of(table_id: str, scale: str, dataset: str | None, run: str | None):
-    from repro.engine.runner import _scale, _spec, latest_run
-    from repro.store.runs import read_run_json, resolve_run
-
-    spec = _spec(table_id)
-    if run:
-        path = resolve_run(run)
-    else:
-        sc = _scale(scale, dataset)
-        path = latest_run(spec.id, sc.name, dataset or sc.dataset_for(spec))
-    return (path, read_run_json(path)) if path is not None else (None, None)
-
-
 def table_page(table_id: str, out: Path, *, scale: str = "quick", dataset: str | None = None,
                run: str | None = None, items: int = 2, strips: bool = True) -> dict:
     """Write one table's page and its assets; returns what it holds (for the index)."""
@@ -163,8 +150,12 @@ def table_page(table_id: str, out: Path, *, scale: str = "quick", dataset: str |
     from repro.report.strip_sets import write_strips
     from repro.store.runs import read_trainings
 
+    from repro.engine.runner import table_run
+    from repro.store.runs import read_run_json
+
     spec = _spec(table_id)
-    path, rj = _run_of(spec.id, scale, dataset, run)
+    path = table_run(spec, scale, dataset, run)
+    rj = read_run_json(path) if path is not None else None
     view = table_view(spec.id, scale=scale, dataset=dataset, run=path.name if path else None)
     name = page_name(spec.id)
     assets = out / name[:-5]
@@ -234,7 +225,7 @@ def table_page(table_id: str, out: Path, *, scale: str = "quick", dataset: str |
             body.append(f"<p class=\"muted\">No strips: {E(why)}.</p>")
 
     body.append("<h2>Provenance</h2><dl>" + "".join(
-        f"<dt>{E(k)}</dt><dd>{E(v)}</dd>" for k, v in provenance(path, rj, view)) + "</dl>")
+        f"<dt>{E(k)}</dt><dd>{E(v)}</dd>" for k, v in provenance(rj, view)) + "</dl>")
     body += [f"<p class=\"muted\">{E(x)}</p>" for x in view.footer]
     (out / name).write_text(_page(f"{spec.id} — repro report", body), encoding="utf-8")
     return {"table": spec.id, "page": name, "state": state, "strips": n_strips,

@@ -171,10 +171,13 @@ def table_strips(rs, *, items: int = 2, replicate: int = 0, key_frames: int = 8,
     notes: list[str] = []
     for band in rs.bands:
         loaded = []
+        want_key = None  # the band's test-set key, computed once
         for r in (r for r in band.rows if r.replicate == replicate):
             try:
                 g = band.load(r)  # DataError: not recorded, gone from the store, malformed
-                if band.is_sequence and g.test_set_key != band.test_set.key():
+                if band.is_sequence and want_key is None:
+                    want_key = band.test_set.key()
+                if band.is_sequence and g.test_set_key != want_key:
                     raise DataError("its stored samples are of another test set")
                 loaded.append((r, g))
             except DataError as e:
