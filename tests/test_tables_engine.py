@@ -246,7 +246,7 @@ def test_show_without_run_and_not_implemented_rows(_repro_home):
     out = _repro("show", "marionette/table3", env_home=_repro_home,
                  tables=repo_root() / "tables")
     assert "not run" in out.stdout and "7.854" in out.stdout
-    out = _repro("show", "multiact/table2", env_home=_repro_home,
+    out = _repro("show", "odmo/table1", env_home=_repro_home,
                  tables=repo_root() / "tables")
     assert "not implemented" in out.stdout
 

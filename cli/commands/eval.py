@@ -8,7 +8,7 @@ import sys
 
 from cli.commands import int_at_least
 
-KINDS = ("a2m_gru", "uestc_gru", "transformer")
+KINDS = ("a2m_gru", "uestc_gru", "multiact_gru", "transformer")
 
 
 def register(subparsers) -> None:

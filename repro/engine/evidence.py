@@ -53,7 +53,11 @@ SCHEDULES: dict[str, dict] = {
     "a2m": {"source": "assumed: Action2Motion's 50,000 iterations; NM states none",
             "assumed": True, "steps": 50_000},
     "actor": {"source": "assumed: ACTOR's UESTC command (1,000 epochs, batch 20; its HumanAct12 "
-              "command trains 5,000); NM states none", "assumed": True},
+              "command trains 5,000); neither NM nor MultiAct states one", "assumed": True},
+    "macvae": {"source": "stated: MultiAct supp. 'Implementation details' (1,300 epochs, batch "
+               "16; the released code trains 1,200)"},
+    "ssmct": {"source": "assumed: the harness's paper-scale SSMCT schedule; MultiAct states none",
+              "assumed": True},
 }
 
 #: the method-config fields that count epochs; a budget factor scales all of them together,

@@ -59,13 +59,22 @@ def evaluator_for(cfg: dict):
                          heading=ev.get("heading"))
 
 
-def training_items(cfg: dict, clips):
-    """The items a method trains on: described by ``cfg["items"]`` (a
-    :class:`repro.data.contexts.ItemSource`), so every protocol that makes items the same way
-    shares the trained model."""
+def training_items(cfg: dict, clips, item_kind: str = "actions"):
+    """The items a method trains on: described by ``cfg["items"]``, so every protocol that
+    makes items the same way shares the trained model.  The description is a
+    :class:`repro.data.contexts.ItemSource` (Neural Marionette's single actions), or, with
+    ``builder = "multiact_pairs"``, a :class:`repro.data.pairs.PairSource` (MultiAct's
+    [S_p, T, S_c] samples); a method whose ``item_kind`` is ``"actions"`` (ACTOR) trains on the
+    pairs' current actions (:meth:`repro.data.pairs.PairItems.as_action_items`)."""
+    desc = cfg["items"]
+    if isinstance(desc, dict) and desc.get("builder") == "multiact_pairs":
+        from repro.data.pairs import PairSource
+
+        pairs = PairSource.from_description(desc).train_items(clips)
+        return pairs if item_kind == "pairs" else pairs.as_action_items()
     from repro.data.contexts import ItemSource
 
-    return ItemSource.from_description(cfg["items"]).train_items(clips)
+    return ItemSource.from_description(desc).train_items(clips)
 
 
 def _write_values(ctx, values: dict) -> None:
@@ -87,9 +96,9 @@ def train_method(ctx) -> None:
     cfg = ctx.config
     ctx.seed_globals()
     clips = clipset(cfg["dataset"])
-    items = training_items(cfg, clips)
     cls = generator_class(cfg["method"])
-    gen = cls(cfg["method_config"], clips.skeleton, clips.n_classes, clips.fps)
+    items = training_items(cfg, clips, getattr(cls, "item_kind", "actions"))
+    gen = cls(cfg["method_config"], clips.skeleton, clips.n_classes, items.fps)
     epochs = cfg["method_config"].get("epochs")
     fraction, val_seed = validation_settings(cfg, ctx.seed)
     if epochs is None:  # nothing is trained (nearest_clip indexes): no curve, every item
@@ -159,11 +168,33 @@ def _protocol_extras(cfg, proto, clips) -> dict:
     return {"evaluator": evaluator_for(cfg), "clipset": clips, "evaluator_factory": factory}
 
 
+def _generators(cfg: dict, inputs) -> tuple:
+    """(the row's generator, {name: extra generator}) from a generate job's inputs.
+
+    ``cfg["models"]`` names the inputs after the first: a composite method (``components``:
+    ACTOR + SSMCT, ACTOR + interpolation) is built from all of them and has none of its own;
+    otherwise the first input is the row's own model and the named ones are the extra models
+    its protocol asked for (:meth:`extra_models`, e.g. ACTOR for MultiAct's first step)."""
+    from repro.models.base import Generator, generator_class
+
+    names = list(cfg.get("models") or [])
+    method = cfg.get("method")
+    cls = generator_class(method) if method else None
+    if cls is not None and getattr(cls, "components", None):
+        parts = {n: Generator.load(i.path) for n, i in zip(names, inputs)}
+        return cls.from_components(parts, cfg["method_config"]), {}
+    gen = load_generator(cfg, inputs[0].path)
+    return gen, {n: Generator.load(i.path) for n, i in zip(names, inputs[1:])}
+
+
 def generate(ctx) -> None:
     cfg, proto, clips, items = _replicate_inputs(ctx)
-    gen = load_generator(cfg, ctx.inputs[0].path)
+    gen, models = _generators(cfg, ctx.inputs)
+    extra = _protocol_extras(cfg, proto, clips)
+    if getattr(proto, "takes_models", False):  # MultiAct: extra models and the row's options
+        extra.update(models=models, row_config=cfg.get("method_config") or {})
     out = proto.generate(gen, items, seed=ctx.seed, replicate=cfg["replicate"], need=cfg["need"],
-                         **_protocol_extras(cfg, proto, clips))
+                         **extra)
     proto.save_generated(out, ctx.out / GENERATED)
 
 
@@ -180,7 +211,7 @@ def measure(ctx) -> None:
 def measure_real(ctx) -> None:
     cfg, proto, clips, items = _replicate_inputs(ctx)
     values = proto.real_replicate(clips, items, evaluator_for(cfg), seed=ctx.seed,
-                                  replicate=cfg["replicate"])
+                                  replicate=cfg["replicate"], **(cfg.get("real") or {}))
     _write_values(ctx, values)
 
 

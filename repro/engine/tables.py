@@ -215,11 +215,12 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
     bands = _bands(spec, scale)
     settings = resolve_settings(scale.name)
     clips = None
-    for b in bands:
+    protos: dict[int, Any] = {}
+    for bi, b in enumerate(bands):
         if not is_implemented(b.protocol):
             b.reason = f"protocol {b.protocol!r} is not implemented yet"
             continue
-        proto = get_protocol(b.protocol, b.params)
+        proto = protos[bi] = get_protocol(b.protocol, b.params)
         b.implemented = True
         b.params = proto.params.describe()  # resolved defaults, as the steps get them back
         b.version = proto.version
@@ -266,48 +267,90 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
             # a method that trains as another (NEURAL MARIONETTE = MarioNet's weights plus
             # inference-time schemes) shares that method's training job
             train_method = getattr(cls, "trains_as", None) or row.method
-            train_cfg = {k: v for k, v in mcfg.items()
-                         if k not in getattr(cls, "inference_fields", ())}
+            inference = tuple(getattr(cls, "inference_fields", ()))
+            train_cfg = {k: v for k, v in mcfg.items() if k not in inference}
             train_module = generator_class(train_method).__module__
+            # a composite (ACTOR + SSMCT, ACTOR + interpolation) trains nothing of its own: its
+            # components are trained as those methods are for any other row (shared jobs)
+            components = dict(getattr(cls, "components", None) or {})
+            if components:
+                comp_cfgs = {}
+                for name, m in components.items():
+                    c, why = _method_config(m, scale, {})
+                    if c is None:
+                        break
+                    comp_cfgs[name] = (m, scale_epochs(c, budget))
+                if c is None:
+                    rp.status, rp.reason = NOT_IMPLEMENTED, f"component {name!r}: {why}"
+                    continue
         for bi, b in enumerate(bands):
             if not b.implemented:
                 continue
             base = b.step_config(dataset)
             fps = {"dataset": fp}
             if row.method == "real":
+                # a protocol whose Real rows differ by an option (MultiAct's Real-train /
+                # Real-test: ``split``) names the overrides it reads; others ignore them
+                opts = {k: v for k, v in row.overrides.items()
+                        if k in getattr(protos[bi], "real_row_options", ())}
+                real = {"real": opts} if opts else {}
                 rp.measures[bi] = [
                     job("measure_real", f"{STEPS}:measure_real",
-                        {**base, "replicate": r, "evaluator": b.evaluator},
+                        {**base, "replicate": r, "evaluator": b.evaluator, **real},
                         seed=s, fingerprints={**fps, "evaluator": b.evaluator_key},
                         label=f"{row.id}/real/r{r}", plugins=(b.module,))
                     for r, s in enumerate(seeds)]
                 continue
-            def train_job(seed):
+            def train_job(seed, method=train_method, method_cfg=train_cfg, module=train_module):
                 # keyed by how the training items are made, not by the protocol, so a model
                 # serves every table whose protocols make items the same way
                 return job("train", f"{STEPS}:train_method",
-                           {"dataset": dataset, "items": b.item_source, "method": train_method,
-                            "method_config": train_cfg, "validation": validation},
+                           {"dataset": dataset, "items": b.item_source, "method": method,
+                            "method_config": method_cfg, "validation": validation},
                            seed=seed, fingerprints=fps,
-                           label=f"{train_method}/train"
+                           label=f"{method}/train"
                            + ("" if seed == seeds[0] else f"/s{seed}"),
-                           plugins=(train_module,))
+                           plugins=(module,))
+
+            proto = protos[bi]
+            takes_models = bool(getattr(proto, "takes_models", False))
+            # extra trained models the protocol needs for this row (MultiAct: ACTOR's previous
+            # motions and first step), then a composite's components; name -> (method, config)
+            needed: dict[str, tuple[str, dict]] = {}
+            if takes_models and hasattr(proto, "extra_models"):
+                for name, m in sorted(proto.extra_models(row.method, mcfg).items()):
+                    c, why = _method_config(m, scale, {})
+                    if c is None:
+                        rp.status, rp.reason = NOT_IMPLEMENTED, f"model {name!r}: {why}"
+                        break
+                    needed[name] = (m, scale_epochs(c, budget))
+            if rp.status != OK:
+                break
+            if components:
+                needed.update(comp_cfgs)
+
+            def jobs_for(seed):
+                own = [] if components else [train_job(seed)]
+                return own + [train_job(seed, m, c, generator_class(m).__module__)
+                              for _, (m, c) in needed.items()]
 
             # one model per row (its seed = the first replicate seed), or with ``retrain`` one
             # per replicate (seed = the replicate's): the first is the same job either way
-            trains = [train_job(s) for s in (seeds if retrain else seeds[:1])]
-            rp.train[bi] = trains
+            per_seed = [jobs_for(s) for s in (seeds if retrain else seeds[:1])]
+            rp.train[bi] = [j for js in per_seed for j in js]
             ms = []
             for r, s in enumerate(seeds):
                 gcfg = {**base, "replicate": r, "need": sorted(set(b.metrics.values()))}
                 gfps = fps
-                if train_method != row.method:
+                if train_method != row.method or components or (takes_models and inference):
                     gcfg.update(method=row.method, method_config=mcfg)
+                if needed:
+                    gcfg["models"] = list(needed)
                 if b.generation_uses_evaluator:  # test set (and AR) depend on the evaluator
                     gcfg["evaluator"] = b.evaluator
                     gfps = {**fps, "evaluator": b.evaluator_key}
                 gen = job("generate", f"{STEPS}:generate", gcfg,
-                          inputs=(trains[r if retrain else 0],), seed=s, fingerprints=gfps,
+                          inputs=tuple(per_seed[r if retrain else 0]), seed=s, fingerprints=gfps,
                           label=f"{row.id if train_method != row.method else row.method}"
                                 f"/generate/r{r}",
                           plugins=tuple(dict.fromkeys((method_module, train_module, b.module))))

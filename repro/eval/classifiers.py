@@ -5,7 +5,9 @@
   the top layer's output at the last time step (``readout = "last_step"``, A2M/ODMO) or at the
   last valid frame (``"last_valid"``, ACTOR's copy) → Linear(hidden → 30) → tanh (the 30-d
   feature for FID, diversity, multimodality) → Linear(30 → C) (the logits).
-  ``a2m_gru`` = 2 × 128, ``uestc_gru`` = 3 × 256.
+  ``a2m_gru`` = 2 × 128, ``uestc_gru`` = 3 × 256, ``multiact_gru`` = 4 × 256 (MultiAct's BABEL
+  recogniser, protocols.md §2.3; how its protocols feed variable-length segments:
+  :mod:`repro.eval.protocols.multiact_common`).
 - :class:`TransformerRecogniser`: Neural Marionette §5.1.2's "Transformer-based action
   recognition network N" (the paper gives no architecture; our choice, docs/evaluators.md):
   Linear(J·3 → d) + sinusoidal positions, a learned class token, a pre-norm transformer

@@ -8,7 +8,8 @@ learning rate per Adam step, counts are windows.
 Where the papers fix a value it is used at every scale:
 
 - A2M GRU (ODMO supp. Table S3; protocols.md §2.1): 2 GRU layers × 128, a 30-d tanh feature
-  layer, a linear classifier; UESTC variant (ODMO supp. Table S4): 3 GRU layers × 256.
+  layer, a linear classifier; UESTC variant (ODMO supp. Table S4): 3 GRU layers × 256;
+  MultiAct's BABEL recogniser (protocols.md §2.3): 4 GRU layers × 256 (``multiact_gru``).
 - Input: windows of ``window`` frames, first-frame root at the origin, absolute coordinates
   (protocols.md §2.1, §3.1); ``heading = "raw"`` is the A2M/ODMO convention.
 - Paper-scale training (protocols.md §2.2, ODMO ``train_classifiers_a2m.py``): Adam 1e-3,
@@ -26,14 +27,16 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from repro.errors import ConfigError, SpecError
 
-KINDS = ("a2m_gru", "uestc_gru", "transformer")
-Kind = Literal["a2m_gru", "uestc_gru", "transformer"]
+KINDS = ("a2m_gru", "uestc_gru", "multiact_gru", "transformer")
+Kind = Literal["a2m_gru", "uestc_gru", "multiact_gru", "transformer"]
 Heading = Literal["raw", "yaw_augment", "remove"]
 HiddenInit = Literal["zero", "learned", "random"]
 Readout = Literal["last_step", "last_valid"]
 
-# GRU shapes fixed by the papers (ODMO supp. Tables S3/S4).
-GRU_SHAPES = {"a2m_gru": {"layers": 2, "hidden": 128}, "uestc_gru": {"layers": 3, "hidden": 256}}
+# GRU shapes fixed by the papers (ODMO supp. Tables S3/S4; MultiAct's evaluate/load_classifier.py,
+# protocols.md §2.3).
+GRU_SHAPES = {"a2m_gru": {"layers": 2, "hidden": 128}, "uestc_gru": {"layers": 3, "hidden": 256},
+              "multiact_gru": {"layers": 4, "hidden": 256}}
 
 
 class _Strict(BaseModel):

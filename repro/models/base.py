@@ -83,6 +83,10 @@ GENERATOR_MODULES: dict[str, str] = {
     "mann": "repro.models.mann",
     "a2m": "repro.models.a2m",
     "actor": "repro.models.actor",
+    "macvae": "repro.models.macvae",
+    "ssmct": "repro.models.ssmct",
+    "actor_ssmct": "repro.models.multiact_baselines",
+    "interpolation": "repro.models.multiact_baselines",
 }
 _REGISTRY: dict[str, type["Generator"]] = {}
 

@@ -131,6 +131,9 @@ METHODS: Mapping[str, MethodInfo] = _freeze([
                "(Duan et al. 2021)"),
     MethodInfo("interpolation", "ACTOR + Interpolation", "multiact",
                "MultiAct's baseline: ACTOR actions joined by linear interpolation"),
+    MethodInfo("ssmct", "SSMCT", "external: Duan et al. 2021 (SSMCT)",
+               "transformer in-betweening model, the transition part of ACTOR + SSMCT "
+               "(trained on the stand-in's pairs)"),
     MethodInfo("odmo", "ODMO", "odmo",
                "ODMO contrastive VAE with trajectory and motion generators; sampling and "
                "ablations via overrides"),

@@ -30,9 +30,10 @@ def _groups(items) -> np.ndarray:
     (``clip_index`` None, or -1 for an item not cut from a ClipSet)."""
     n = len(items)
     own = -1 - np.arange(n, dtype=np.int64)          # unique, never a clip row
-    if items.clip_index is None:
+    clip_index = getattr(items, "clip_index", None)  # PairItems: S_c's source clip, if given
+    if clip_index is None:
         return own
-    clip = items.clip_index.detach().cpu().numpy().astype(np.int64).reshape(n)
+    clip = clip_index.detach().cpu().numpy().astype(np.int64).reshape(n)
     return np.where(clip >= 0, clip, own)
 
 

@@ -23,6 +23,9 @@ PROTOCOL_MODULES: dict[str, str] = {
     "single_action": "repro.eval.protocols.single_action",
     "multi_action": "repro.eval.protocols.multi_action",
     "ss_ar": "repro.eval.protocols.ss_ar",
+    "multiact_conditioned": "repro.eval.protocols.multiact_conditioned",
+    "transition": "repro.eval.protocols.transition",
+    "long_term": "repro.eval.protocols.long_term",
 }
 _REGISTRY: dict[str, type] = {}
 
