@@ -222,7 +222,7 @@ def test_train_method_writes_schema_2(method, fraction, clips, items, tmp_path, 
     from repro.models.base import generator_class
 
     monkeypatch.setattr(steps, "clipset", lambda name: clips)
-    monkeypatch.setattr(steps, "training_items", lambda cfg, c: items)
+    monkeypatch.setattr(steps, "training_items", lambda cfg, c, kind="actions": items)
     mcfg = generator_class(method).Config.resolve(
         {**TINY_MARIONET, "epochs": 2} if method == "marionet" else None).model_dump(mode="json")
     cfg = {"dataset": "synthetic", "items": {}, "method": method, "method_config": mcfg}

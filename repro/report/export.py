@@ -11,7 +11,16 @@ frames, seed).
 - **single action**: the generated action, its valid frames only (``lengths``), in the world
   frame the protocol measured it in;
 - **multi action**: the whole generated chain of a test sequence, its actions one after
-  another (each cut to its duration), so the file plays the sequence as the scoring saw it.
+  another (each cut to its duration), so the file plays the sequence as the scoring saw it;
+- **MultiAct single step** (``multiact_conditioned``, ``transition``; ``item``: a test pair):
+  the generated ``[T̂, Ŝ_c]`` (``l_t + l_c`` frames; ACTOR: ``Ŝ_c`` only) in the world frame it
+  was made in, continuing its ``S_p``.  ``S_p`` is not in the file (the real one is a test
+  pair's, a generated one is not stored); the meta gives ``prev_tag``, ``transition_frames``
+  and ``action_frames``;
+- **MultiAct long term** (``long_term``; ``item``: a label sequence): the whole generated chain,
+  step after step, every action but the last cut to the frames the next step continued from
+  (``prev_trim`` fewer, :func:`repro.report.pair_strips.chain_parts`); the meta gives the
+  steps' ``tags``, ``frames`` and ``transition_frames``.
 
 A BVH is written on the samples' skeleton (the data set's, :mod:`repro.data.bvh_write`:
 centimetres, ZXY Euler channels); ``dummy_root`` adds the all-zero root the Bandai files carry,
@@ -32,9 +41,41 @@ from repro.errors import ConfigError, DataError
 FORMATS = ("bvh", "npz")
 
 
+def _multiact_pieces(band, g, item: int | None):
+    """:func:`_pieces` of MultiAct samples (module docstring)."""
+    names = band.items.label_names
+    if g.n_sequences:
+        from repro.report.pair_strips import chain_parts
+
+        S, N = g.n_sequences, g.n_steps
+        trim = int(band.protocol.params.prev_trim)
+        for s in range(S) if item is None else [item]:
+            if not 0 <= s < S:
+                raise ConfigError(f"--item {s}: the long-term plan has label sequences "
+                                  f"0..{S - 1}")
+            parts = chain_parts(g, s, N, trim)
+            yield f"seq{s}", [(i, lt + lc) for i, lt, lc in parts], {
+                "sequence": s, "tags": [names[int(g.labels[i])] for i, _, _ in parts],
+                "frames": [lt + lc for _, lt, lc in parts],
+                "transition_frames": [lt for _, lt, _ in parts], "prev_trim": trim}
+        return
+    items = band.items
+    N = len(g)
+    for i in range(N) if item is None else [item]:
+        if not 0 <= i < N:
+            raise ConfigError(f"--item {i}: the test pairs are 0..{N - 1}")
+        lt, lc = int(g.l_t[i]), int(g.l_c[i])
+        yield f"item{i}", [(i, lt + lc)], {
+            "item": i, "tag": names[int(g.labels[i])],
+            "prev_tag": names[int(items.prev_labels[i])], "frames": lt + lc,
+            "transition_frames": lt, "action_frames": lc}
+
+
 def _pieces(band, g, item: int | None):
     """(stem suffix, motion slices, meta) of every exported item of one row's samples."""
-    if band.is_sequence:
+    if hasattr(g, "items_key"):  # MultiAct's samples (MultiActSamples)
+        yield from _multiact_pieces(band, g, item)
+    elif band.is_sequence:
         S, L = g.n_sequences, g.n_actions
         which = range(S) if item is None else [item]
         for s in which:

@@ -19,6 +19,9 @@ What a strip shows:
 
 Items: single action: ``items`` test items of different tags (a seeded choice, ``seed``);
 multi action: the first ``items`` test sequences (the test set is already a seeded draw).
+
+MultiAct's bands (test pairs ``[S_p, T, S_c]``, long-term label sequences) are drawn by
+:mod:`repro.report.pair_strips`.
 """
 
 from __future__ import annotations
@@ -161,6 +164,8 @@ def table_strips(rs, *, items: int = 2, replicate: int = 0, key_frames: int = 8,
                  max_actions: int = 4, seed: int = 0) -> tuple[list[Strip], list[str]]:
     """The strips of a run (:class:`repro.engine.run_samples.RunSamples`) and notes on rows
     that have none."""
+    from repro.report.pair_strips import long_term_strips, multiact_kind, pair_strips
+
     reps = sorted({r.replicate for b in rs.bands for r in b.rows})
     if reps and replicate not in reps:
         from repro.errors import ConfigError
@@ -172,6 +177,7 @@ def table_strips(rs, *, items: int = 2, replicate: int = 0, key_frames: int = 8,
     for band in rs.bands:
         loaded = []
         want_key = None  # the band's test-set key, computed once
+        items_key = None  # the band's test items' key (samples that record one: MultiAct)
         for r in (r for r in band.rows if r.replicate == replicate):
             try:
                 g = band.load(r)  # DataError: not recorded, gone from the store, malformed
@@ -179,13 +185,22 @@ def table_strips(rs, *, items: int = 2, replicate: int = 0, key_frames: int = 8,
                     want_key = band.test_set.key()
                 if band.is_sequence and g.test_set_key != want_key:
                     raise DataError("its stored samples are of another test set")
+                if getattr(g, "items_key", ""):
+                    items_key = items_key or band.items.key()
+                    if g.items_key != items_key:
+                        raise DataError("its stored samples are of other test items")
                 loaded.append((r, g))
             except DataError as e:
                 notes.append(f"{r.row_id} ({band.label}): {e}")
         if not loaded:
             continue
         try:
-            if band.is_sequence:
+            kind = multiact_kind(band)
+            if kind == "pairs":
+                strips += pair_strips(band, loaded, items, replicate, key_frames, seed)
+            elif kind == "long_term":
+                strips += long_term_strips(band, loaded, items, replicate, max_actions)
+            elif band.is_sequence:
                 strips += _sequence_strips(band, loaded, items, replicate, max_actions)
             else:
                 strips += _single_strips(band, loaded, items, replicate, key_frames, seed)
