@@ -233,3 +233,42 @@ def test_medium_rerun_is_a_second_sample_of_the_same_tables():
         for row, cols in summary["cells"].items():
             for col, cell in cols.items():
                 assert sum(raw[(row, col)]) / cell["n"] == pytest.approx(cell["mean"], rel=1e-12)
+
+
+# -- MultiAct (issue 13): its records sit in their own folders --------------------------------
+MULTIACT = {f"multiact/{t}" for t in ("table1", "table2", "table3", "tableA", "tableB", "fig6")}
+MA_RUNS = {"medium": _records("multiact-medium"), "quick": _records("multiact-quick")}
+MA_ALL = [(s, p) for s, ps in MA_RUNS.items() for p in ps]
+
+
+def test_there_are_multiact_records_for_every_spec():
+    for scale, records in MA_RUNS.items():
+        assert {_run(p)[0]["table"] for p in records} == MULTIACT, scale
+
+
+@pytest.mark.parametrize("scale, path", MA_ALL, ids=[f"{s}/{p.name}" for s, p in MA_ALL])
+def test_multiact_record_matches_its_baseline_and_its_values(scale, path):
+    rj, summary = _run(path)
+    assert rj["status"] == "FINISHED" and rj["scale"] == scale
+    assert rj["dataset"] == {"medium": "bandai2", "quick": "bandai2-mini"}[scale]
+    base = load_baseline(repo_root() / "tables" / "baselines" / scale, rj["table"])
+    assert base["run"] == rj["run_id"]
+    assert compare(base, summary) == []
+    _cells_are_their_values(path, summary, len(rj["config"]["seeds"]))
+
+
+def test_results_page_prints_the_multiact_records(tmp_path, monkeypatch):
+    from repro.engine.runner import table_view
+    from repro.report import render
+
+    home = tmp_path / "home"
+    for _, p in MA_ALL:
+        shutil.copytree(p, home / "runs" / p.name)
+    monkeypatch.setenv("REPRO_HOME", str(home))
+    text = "\n".join(ln.rstrip() for ln in
+                     (repo_root() / "docs" / "results.md").read_text().splitlines())
+    for _, p in MA_ALL:
+        rj, _ = _run(p)
+        md = render(table_view(rj["table"], scale=rj["scale"], run=rj["run_id"]), "md")
+        block = "\n".join(ln.rstrip() for ln in md.strip().splitlines())
+        assert block in text, f"docs/results.md does not show run {rj['run_id']} as rendered"
