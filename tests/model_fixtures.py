@@ -1,7 +1,8 @@
 """Fixtures shared by the model tests (test_marionet.py, test_baselines.py): one torch thread
 for the module, and a small synthetic clip set with its train and test action items.
 
-Import them by name (``from model_fixtures import clips, items, test_items, one_torch_thread``);
+Import them by name (``from model_fixtures import clips, items, test_items, one_torch_thread``;
+``mini_clips`` is the bundled bandai2-mini);
 ``one_torch_thread`` is autouse, so importing it is enough."""
 
 from __future__ import annotations
@@ -26,6 +27,14 @@ def one_torch_thread():
 @pytest.fixture(scope="module")
 def clips():
     return synthetic_clipset(n_per_class=6, min_len=14, max_len=26)
+
+
+@pytest.fixture(scope="module")
+def mini_clips():
+    """The bundled bandai2-mini clip set (ODMO's window models and protocols)."""
+    from repro.data.registry import load_clipset
+
+    return load_clipset("bandai2-mini")
 
 
 @pytest.fixture(scope="module")

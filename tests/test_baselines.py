@@ -107,7 +107,7 @@ def test_registry_and_bad_configs(clips):
     with pytest.raises(ConfigError, match="n_expertz"):
         MANN({"n_expertz": 4}, clips.skeleton, 3, 30.0)
     with pytest.raises(ConfigError, match="representation"):
-        A2M({"representation": "xyz"}, clips.skeleton, 3, 30.0)
+        A2M({"representation": "quat"}, clips.skeleton, 3, 30.0)
     with pytest.raises(ConfigError, match="divisible"):
         ACTOR({"latent_dim": 30, "num_heads": 4}, clips.skeleton, 3, 30.0)
 

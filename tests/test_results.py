@@ -246,8 +246,9 @@ def test_there_are_multiact_records_for_every_spec():
         assert {_run(p)[0]["table"] for p in records} == MULTIACT, scale
 
 
-@pytest.mark.parametrize("scale, path", MA_ALL, ids=[f"{s}/{p.name}" for s, p in MA_ALL])
-def test_multiact_record_matches_its_baseline_and_its_values(scale, path):
+def _family_record_checks(scale: str, path: Path) -> dict:
+    """A paper family's record (its own folders): finished, its scale's data set, equal to
+    its committed baseline, every cell the mean of its raw values; returns the summary."""
     rj, summary = _run(path)
     assert rj["status"] == "FINISHED" and rj["scale"] == scale
     assert rj["dataset"] == {"medium": "bandai2", "quick": "bandai2-mini"}[scale]
@@ -255,20 +256,62 @@ def test_multiact_record_matches_its_baseline_and_its_values(scale, path):
     assert base["run"] == rj["run_id"]
     assert compare(base, summary) == []
     _cells_are_their_values(path, summary, len(rj["config"]["seeds"]))
+    return summary
 
 
-def test_results_page_prints_the_multiact_records(tmp_path, monkeypatch):
+def _page_prints(records, tmp_path, monkeypatch) -> None:
+    """docs/results.md shows every record of ``records`` exactly as it renders."""
     from repro.engine.runner import table_view
     from repro.report import render
 
     home = tmp_path / "home"
-    for _, p in MA_ALL:
+    for _, p in records:
         shutil.copytree(p, home / "runs" / p.name)
     monkeypatch.setenv("REPRO_HOME", str(home))
     text = "\n".join(ln.rstrip() for ln in
                      (repo_root() / "docs" / "results.md").read_text().splitlines())
-    for _, p in MA_ALL:
+    for _, p in records:
         rj, _ = _run(p)
         md = render(table_view(rj["table"], scale=rj["scale"], run=rj["run_id"]), "md")
         block = "\n".join(ln.rstrip() for ln in md.strip().splitlines())
         assert block in text, f"docs/results.md does not show run {rj['run_id']} as rendered"
+
+
+@pytest.mark.parametrize("scale, path", MA_ALL, ids=[f"{s}/{p.name}" for s, p in MA_ALL])
+def test_multiact_record_matches_its_baseline_and_its_values(scale, path):
+    _family_record_checks(scale, path)
+
+
+def test_results_page_prints_the_multiact_records(tmp_path, monkeypatch):
+    _page_prints(MA_ALL, tmp_path, monkeypatch)
+
+
+# -- ODMO (issue 14): its records sit in their own folders --------------------------------------
+ODMO = {f"odmo/{t}" for t in ("table1", "table2", "table3", "table4", "tableS1")}
+OD_RUNS = {"medium": _records("odmo-medium"), "quick": _records("odmo-quick")}
+OD_ALL = [(s, p) for s, ps in OD_RUNS.items() for p in ps]
+
+
+def test_there_are_odmo_records_for_every_spec():
+    for scale, records in OD_RUNS.items():
+        assert {_run(p)[0]["table"] for p in records} == ODMO, scale
+
+
+@pytest.mark.parametrize("scale, path", OD_ALL, ids=[f"{s}/{p.name}" for s, p in OD_ALL])
+def test_odmo_record_matches_its_baseline_and_its_values(scale, path):
+    summary = _family_record_checks(scale, path)
+    # no ODMO cell is "not implemented": every row of every spec has values
+    assert all(v["status"] == "ok" for v in summary["rows"].values()), summary["rows"]
+
+
+def test_odmo_table3_has_the_style_columns():
+    for scale, records in OD_RUNS.items():
+        (t3,) = [p for p in records if _run(p)[0]["table"] == "odmo/table3"]
+        cells = _run(t3)[1]["cells"]
+        for row in ("odmo", "actor"):
+            assert {"humanact12.style_nmi", "humanact12.style_ari",
+                    "humanact12.style_coverage"} <= set(cells[row]), (scale, row)
+
+
+def test_results_page_prints_the_odmo_records(tmp_path, monkeypatch):
+    _page_prints(OD_ALL, tmp_path, monkeypatch)

@@ -313,8 +313,11 @@ def test_scales_resolve_and_paper_values():
     assert (mv["d_model"], mv["layers"], mv["heads"], mv["lr"], mv["batch_size"], mv["epochs"],
             mv["lambda_acc"], mv["lambda_kl"]) == (512, 8, 4, 5e-5, 16, 1300, 1.0, 1e-5)
     od = p.method_config("odmo")
-    assert (od["latent_dim"], od["lr"], od["margin"], od["sigma2"], od["teacher_forcing_start"],
-            od["teacher_forcing_end"]) == (20, 1e-3, 5.0, 0.05, 1.0, 0.3)
+    assert (od["latent_dim"], od["lr"], od["margin"], od["sigma2"], od["tf_start"],
+            od["tf_end"], od["tf_decay_epochs"], od["batch_size"], od["windows_per_epoch"],
+            od["epochs"]) == (20, 1e-3, 5.0, 0.05, 1.0, 0.3, 4000, 512, 2048, 100_000)
+    from repro.models.odmo import ODMOConfig  # every paper-scale field is a real config field
+    ODMOConfig(**od)
     assert p.protocol_config("multi_action")["sequences"] == 764
 
 

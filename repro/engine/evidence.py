@@ -58,11 +58,29 @@ SCHEDULES: dict[str, dict] = {
                "16; the released code trains 1,200)"},
     "ssmct": {"source": "assumed: the harness's paper-scale SSMCT schedule; MultiAct states none",
               "assumed": True},
+    "odmo": {"source": "the reference code: 100,000 epochs of 2,048 pairs in batches of 512 "
+             "(protocols.md §3.9); the paper states none", "steps": 400_000},
+    "dlow_gen": {"source": "stated: ODMO supp. §2.4 (5,000 VAE and 600 DLow epochs; epochs of "
+                 "2,048 windows in DLow's batches of 64 are our reading)", "steps": 179_200},
+    "act_mocogan": {"source": "assumed: MoCoGAN's 100,000 iterations; ODMO states none",
+                    "assumed": True, "steps": 100_000},
 }
 
 #: the method-config fields that count epochs; a budget factor scales all of them together,
 #: so a schedule keeps its shape (MarioNet's scheduled sampling, MANN's warm restarts)
-EPOCH_FIELDS = ("epochs", "ss_activate_epoch", "ss_accomplish_epoch", "restart_period")
+EPOCH_FIELDS = ("epochs", "ss_activate_epoch", "ss_accomplish_epoch", "restart_period",
+                "vae_epochs", "dlow_epochs", "tf_decay_epochs")
+#: methods trained in stages, each with its own epoch count (DLow-Gen: the VAE, then DLow)
+STAGE_EPOCH_FIELDS = ("vae_epochs", "dlow_epochs")
+
+
+def config_epochs(config: dict) -> int | None:
+    """The epochs a method config trains: ``epochs``, or the sum of its stages' epochs
+    (:data:`STAGE_EPOCH_FIELDS`); None for a method that does not train by epochs."""
+    if config.get("epochs") is not None:
+        return int(config["epochs"])
+    stages = [config[k] for k in STAGE_EPOCH_FIELDS if isinstance(config.get(k), int)]
+    return sum(stages) if stages else None
 
 
 @lru_cache(maxsize=None)
@@ -111,15 +129,22 @@ def training_budget(train_method: str, method_config: dict, training: dict | Non
     """A row's budget against the paper's (module docstring), or None for a method that does
     not train by epochs.  Keys: ``fraction`` (None when the paper states no schedule),
     ``epochs``, ``paper_epochs``, ``steps``, ``paper_steps`` (None when S is unknown)."""
-    epochs, batch = method_config.get("epochs"), method_config.get("batch_size")
+    epochs, batch = config_epochs(method_config), method_config.get("batch_size")
     if not epochs:
         return None
     paper = paper_method_config(train_method)
-    pe, pb = paper.get("epochs"), paper.get("batch_size")
+    pe, pb = config_epochs(paper), paper.get("batch_size")
     sched = SCHEDULES.get(train_method, {})
     out = {"method": train_method, "epochs": int(epochs), "paper_epochs": pe, "steps": None,
            "paper_steps": None, "fraction": None, "schedule": sched.get("source"),
            "assumed": bool(sched.get("assumed"))}
+    if sched.get("steps") and not training:  # no record yet: the planned steps
+        wpe = method_config.get("windows_per_epoch")
+        if wpe:
+            steps = int(epochs) * math.ceil(int(wpe) / int(batch))
+            out.update(steps=steps, paper_steps=int(sched["steps"]),
+                       fraction=steps / int(sched["steps"]))
+            return out
     if not pe or not pb or not batch:
         return out
     training = training or {}
@@ -224,4 +249,6 @@ def evaluator_text(ev: dict | None) -> str | None:
     s = f"{ev.get('kind')} seed {ev.get('seed', 0)}"
     if ev.get("heading"):
         s += f", heading {ev['heading']}"
+    for k, v in sorted((ev.get("settings") or {}).items()):
+        s += f", {k} {v}"
     return s + " (trained by the harness on the stand-in)"

@@ -43,6 +43,35 @@ def _scale(name: str, dataset: str | None):
     return resolve_scale(name, dataset)
 
 
+def _band_protocol_class(band):
+    from repro.eval.protocols import protocol_class
+
+    try:
+        return protocol_class(band.protocol)
+    except Exception:  # a protocol that is not built: no note
+        return None
+
+
+def _group_lines(plan) -> list[str]:
+    """One line per column group that sets its own protocol parameters: what the group (a
+    paper data set) is on the data set actually run, with the values the run resolved (scale
+    overrides included) for the parameters the spec's group names."""
+    spec, out, seen = plan.spec, [], set()
+    for b in plan.bands:
+        if not b.implemented:
+            continue
+        for col in b.columns:
+            g = spec.group_of(col)
+            if g is None or not g.protocol_params or g.id in seen:
+                continue
+            seen.add(g.id)
+            vals = ", ".join(f"{k} {b.params.get(k, v)!r}".replace("'", "")
+                             for k, v in g.protocol_params.items())
+            paper = f" (the paper's {g.paper_dataset})" if g.paper_dataset else ""
+            out.append(f"Group {g.label}{paper} on {plan.dataset}: {vals}.")
+    return out
+
+
 def _footer(plan, evaluators: dict[str, Any], run_id: str | None,
             budgets: dict | None = None, trainings: list | None = None) -> list[str]:
     from repro.engine.evidence import budgets_text
@@ -80,6 +109,13 @@ def _footer(plan, evaluators: dict[str, Any], run_id: str | None,
                      "validation_fraction) only draws their learning curves (repro runs show).")
     for desc in evaluators.values():
         lines.append(f"Evaluator: {desc}")
+    lines += _group_lines(plan)
+    notes = []
+    for b in plan.bands:
+        note = getattr(_band_protocol_class(b), "footer_note", None) if b.implemented else None
+        if note and note not in notes:
+            notes.append(note)
+    lines += notes
     for b in plan.bands:
         if not b.implemented:
             lines.append(f"Columns {', '.join(b.columns)}: {b.reason}.")
@@ -105,6 +141,46 @@ def _evaluators(plan, *, train: bool, progress: bool) -> dict[str, str]:
         ev = evaluator_for(b.step_config(plan.dataset, with_evaluator=True))
         out[b.evaluator_key] = ev.describe()
     return out
+
+
+def _train_one_evaluator(cfg: dict) -> str:
+    """Worker of :func:`_train_evaluators_side_by_side` (a top-level function: picklable)."""
+    from repro.engine.steps import evaluator_for
+
+    return evaluator_for(cfg).describe()
+
+
+def _train_evaluators_side_by_side(plans, jobs: int, progress: bool) -> None:
+    """Train the evaluators the plans need and the store lacks, up to ``jobs`` at a time in
+    worker processes (each trains with its settings' fixed thread count, so the weights are the
+    same as one after another); :func:`_evaluators` then loads them.  A failure is left for
+    the sequential pass to raise in the parent, with its usual message."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    from repro.store.objects import Store
+
+    store, todo = Store(), {}
+    for p in plans:
+        if not p.jobs():
+            continue
+        for b in p.bands:
+            if b.evaluator is None or b.evaluator_key is None or b.evaluator_key in todo:
+                continue
+            if store.get(b.evaluator_key) is None:
+                todo[b.evaluator_key] = b.step_config(p.dataset, with_evaluator=True)
+    if len(todo) < 2:
+        return
+    if progress:
+        print(f"repro: training {len(todo)} evaluators, {min(jobs, len(todo))} at a time…",
+              file=sys.stderr)
+    with ProcessPoolExecutor(max_workers=min(jobs, len(todo)),
+                             mp_context=mp.get_context("spawn")) as pool:
+        for f in [pool.submit(_train_one_evaluator, cfg) for cfg in todo.values()]:
+            try:
+                f.result()
+            except Exception:  # noqa: BLE001 - re-raised by the sequential pass
+                pass
 
 
 def _gate(plan) -> None:
@@ -190,6 +266,8 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
         recs = [stack.enter_context(RunRecorder(
             table=p.spec.id, spec_version=p.spec.version, spec_hash=p.spec.spec_hash,
             config=p.config, scale=sc.name, dataset=p.dataset)) for p in plans]
+        if jobs > 1:
+            _train_evaluators_side_by_side(plans, jobs, progress)
         evaluators = [_evaluators(p, train=bool(p.jobs()), progress=progress) for p in plans]
         for p in plans:
             if p.jobs():

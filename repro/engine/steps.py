@@ -49,14 +49,15 @@ def evaluator_clipset(protocol, clipset):
 
 def evaluator_for(cfg: dict):
     """The evaluator of a band: ``cfg`` holds ``dataset``, ``protocol``, ``protocol_params`` and
-    ``evaluator`` {dataset, kind, scale, seed[, heading]}.  Trained once, then loaded from the
-    store."""
+    ``evaluator`` {dataset, kind, scale, seed[, heading][, settings]} (``settings``: the
+    protocol's overrides of the scale's evaluator settings, e.g. ODMO's window).  Trained once,
+    then loaded from the store."""
     from repro.eval.provider import get_evaluator
 
     ev = cfg["evaluator"]
     clips = evaluator_clipset(_protocol(cfg), clipset(cfg["dataset"]))
     return get_evaluator(ev["dataset"], ev["kind"], ev["scale"], ev["seed"], clipset=clips,
-                         heading=ev.get("heading"))
+                         heading=ev.get("heading"), overrides=ev.get("settings"))
 
 
 def training_items(cfg: dict, clips, item_kind: str = "actions"):
@@ -65,8 +66,16 @@ def training_items(cfg: dict, clips, item_kind: str = "actions"):
     :class:`repro.data.contexts.ItemSource` (Neural Marionette's single actions), or, with
     ``builder = "multiact_pairs"``, a :class:`repro.data.pairs.PairSource` (MultiAct's
     [S_p, T, S_c] samples); a method whose ``item_kind`` is ``"actions"`` (ACTOR) trains on the
-    pairs' current actions (:meth:`repro.data.pairs.PairItems.as_action_items`)."""
+    pairs' current actions (:meth:`repro.data.pairs.PairItems.as_action_items`); with
+    ``builder = "odmo_windows"`` a :class:`repro.data.odmo_items.WindowItems` pool (ODMO's
+    windows; methods of ``item_kind`` ``"windows"``), or its fixed windows as actions (ACTOR,
+    Action2Motion in ODMO's tables)."""
     desc = cfg["items"]
+    if isinstance(desc, dict) and desc.get("builder") == "odmo_windows":
+        from repro.data.odmo_items import WindowSource
+
+        pool = WindowSource.from_description(desc).train_items(clips)
+        return pool if item_kind == "windows" else pool.as_action_items()
     if isinstance(desc, dict) and desc.get("builder") == "multiact_pairs":
         from repro.data.pairs import PairSource
 
@@ -99,7 +108,9 @@ def train_method(ctx) -> None:
     cls = generator_class(cfg["method"])
     items = training_items(cfg, clips, getattr(cls, "item_kind", "actions"))
     gen = cls(cfg["method_config"], clips.skeleton, clips.n_classes, items.fps)
-    epochs = cfg["method_config"].get("epochs")
+    from repro.engine.evidence import config_epochs
+
+    epochs = config_epochs(cfg["method_config"])
     fraction, val_seed = validation_settings(cfg, ctx.seed)
     if epochs is None:  # nothing is trained (nearest_clip indexes): no curve, every item
         fraction = 0.0

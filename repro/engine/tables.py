@@ -230,14 +230,17 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
         heading = getattr(proto, "evaluator_heading", None)
         if heading is not None:  # a protocol that changes headings asks for a heading-free one
             b.evaluator["heading"] = heading
+        over = dict(proto.evaluator_overrides()) if hasattr(proto, "evaluator_overrides") else {}
+        if over:  # e.g. ODMO's window per paper data set
+            b.evaluator["settings"] = over
         b.item_source = proto.item_source().describe() if hasattr(proto, "item_source") else None
         b.generation_uses_evaluator = bool(getattr(proto, "generation_uses_evaluator", False))
         if fp is not None:
             from repro.engine.steps import clipset, evaluator_clipset
 
             clips = clips or clipset(dataset)
-            ev_settings = settings if heading is None else resolve_settings(
-                scale.name, {"heading": heading})
+            ev_over = {**over, **({} if heading is None else {"heading": heading})}
+            ev_settings = resolve_settings(scale.name, ev_over) if ev_over else settings
             b.evaluator_key = evaluator_key(proto.evaluator_kind, ev_settings,
                                             evaluator_clipset(proto, clips).fingerprint,
                                             int(evaluator_seed))

@@ -23,7 +23,9 @@ Pose parameters ``x_t`` (``representation``):
   ``J×6`` local 6D rotations then the root translation; the decoder's head is linear;
 - ``"lie"`` (A2M's own): per-joint rotation vectors (axis × angle, the Lie algebra so(3); the
   root's included since our root carries the heading) then the root translation; the head is
-  A2M's ``DecoderGRULie`` (root linear; rotations ``π·tanh(FC(tanh(h)))``).
+  A2M's ``DecoderGRULie`` (root linear; rotations ``π·tanh(FC(tanh(h)))``);
+- ``"xyz"`` (A2M's xyz training, ODMO's "A2M-xyz" row): all ``J`` joints' positions in metres,
+  joint-major (``3J`` numbers, the items' frame); the head is linear.  See "ODMO's baselines".
 
 Training (Guo et al. Eq. 5; the authors' trainer): for each frame,
 ``L_t = MSE(FK(x̂_t), FK(x_t)) + λ_KL·KL(q(z_t) ‖ p(z_t)) [+ λ_param·MSE(x̂_t, x_t)]``, the
@@ -36,7 +38,39 @@ prediction back) a batch feeds the decoder's own prediction ``x̂_{t}`` (with gr
 next ``x_t``; otherwise the data.  Adam, lr 2e-4, weight decay 1e-5, batch 128.
 
 Sampling: ``z_t ~ p(z_t | x_{<t}, a)`` (``μ^p_t`` when ``use_mean``), ``x̂_t`` fed back; noise
-drawn per item from the seed.  Units: metres, frames at the items' fps.
+drawn per item from the seed.  :meth:`A2M.sample` returns rotations (a GeneratedItems);
+:meth:`A2M.sample_joints` returns joint positions (N, T_max, J, 3) for every representation,
+both in the world frame.  Units: metres, frames at the items' fps.
+
+ODMO's baselines
+----------------
+ODMO (Lu et al., MM 2022, §4.2.3 and supp. §2.4) compares against "A2M-xyz" and "A2M-Lie":
+Action2Motion trained on joint xyz coordinates and on its Lie-algebra representation, "with
+their default parameters" (trained by the ODMO authors on MoCap and UESTC; the released model on
+HumanAct12).  ODMO re-scores both with its own pipeline on joint positions (protocols.md §6), so
+both rows are read through :meth:`A2M.sample_joints`.  Here:
+
+- **A2M-Lie** = ``representation = "lie", initial_pose = False``: A2M's own setting, the rest-pose
+  start ``x_0`` = zero Lie vector (identity rotations, root at the origin), the joint-position
+  loss by FK; the initial motion is never read (``uses`` = label, length).
+- **A2M-xyz** = ``representation = "xyz", initial_pose = False``: ``x_t`` = the ``J`` joints'
+  positions (``3J``, metres) in the item's frame, no forward kinematics anywhere in the
+  network or its loss; the reconstruction term is the MSE on those positions directly (per
+  frame the mean over ``J×3``, the same quantity and scale as the FK loss of the rotation
+  paths); ``x_0`` = the zero vector (A2M's xyz start), or with ``initial_pose`` the joint
+  positions of the last initial frame.  ``lambda_param`` would add the same MSE a second time
+  (the parameters *are* the positions).  A motion of rotations cannot be made from positions,
+  so :meth:`A2M.sample` and :meth:`A2M.generate_poses` raise ``ConfigError`` for ``"xyz"``;
+  use :meth:`A2M.sample_joints`.
+- Items: ODMO's rows train on :meth:`repro.data.odmo_items.WindowItems.as_action_items` (fixed
+  windows of ``window`` frames, the window's first-frame root at the origin, no rotation, one
+  initial frame: ``n_init = 1``), A2M's own pre-processing (protocols.md §3.1: root(frame 0) at
+  the origin, no rotation).  ``sample_joints`` maps back with the items' canon
+  (``canon.invert_points``); with :func:`repro.data.odmo_items.label_condition_items` (identity
+  canon) the samples stay in the window frame ODMO scores in.
+- Hyper-parameters: the Config defaults (A2M's HumanAct12 command: hidden 128, ``dim_z`` 30,
+  λ_KL 1e-3, batch 128, lr 2e-4, time counter on, ``tf_ratio`` 0.6).  ``epochs`` is the only
+  budget knob; the paper does not state one for its retrained A2M models.
 """
 
 from __future__ import annotations
@@ -50,10 +84,11 @@ import torch.nn.functional as F
 from pydantic import model_validator
 from torch import nn
 
+from repro.errors import ConfigError
 from repro.models.base import Generator, GeneratorConfig, register
 from repro.models.baseline_io import (check_items, item_noise, length_mask, pack_poses,
                                       pose_joints, to_generated, unpack_poses)
-from repro.models.items import ActionItems, GeneratedItems
+from repro.models.items import ActionItems, GeneratedItems, pad_last
 from repro.motion.rotations import (axis_angle_to_matrix, matrix_to_6d, matrix_to_axis_angle,
                                     sixd_to_matrix)
 from repro.seeding import derive_seed
@@ -63,7 +98,7 @@ class A2MConfig(GeneratorConfig):
     """Action2Motion hyper-parameters; defaults = the authors' HumanAct12 settings, with Neural
     Marionette's two adaptations (6D rotations, the initial pose) switched on."""
 
-    representation: Literal["6d", "lie"] = "6d"   # NM: 6D instead of A2M's Lie algebra
+    representation: Literal["6d", "lie", "xyz"] = "6d"  # NM: 6D (A2M: Lie algebra or xyz)
     initial_pose: bool = True                     # NM: x_0 = last initial pose (A2M: rest pose)
     dim_z: int = 30
     hidden: int = 128
@@ -184,7 +219,10 @@ class A2M(Generator):
         if not self.config.initial_pose:
             self.uses = frozenset({"label", "length"})  # A2M's own: starts from the rest pose
         J = skeleton.n_joints
-        self.n_params = (6 if self.config.representation == "6d" else 3) * J + 3
+        if self.config.representation == "xyz":
+            self.n_params = 3 * J                       # joint positions only
+        else:
+            self.n_params = (6 if self.config.representation == "6d" else 3) * J + 3
         self._build(derive_seed(0, self.method_id, "construct"))
 
     def _make_network(self) -> A2MNet:
@@ -196,9 +234,13 @@ class A2M(Generator):
 
     # -- representation ------------------------------------------------------------------------
     def to_params(self, poses: torch.Tensor) -> torch.Tensor:
-        """Pose vectors (..., 6J+3) → the representation's parameters (..., n_params)."""
+        """Pose vectors (..., 6J+3) → the representation's parameters (..., n_params); for
+        ``xyz`` the joint positions by forward kinematics, flattened joint-major."""
         if self.config.representation == "6d":
             return poses
+        if self.config.representation == "xyz":
+            joints = pose_joints(self.skeleton, poses)
+            return joints.reshape(joints.shape[:-2] + (-1,))
         rot6d, root = unpack_poses(poses, self.skeleton.n_joints)
         aa = matrix_to_axis_angle(sixd_to_matrix(rot6d))
         return torch.cat([aa.reshape(aa.shape[:-2] + (-1,)), root], dim=-1)
@@ -208,16 +250,27 @@ class A2M(Generator):
         for ``6d``; the pose-vector readers apply Gram-Schmidt)."""
         if self.config.representation == "6d":
             return params
+        self._need_rotations()
         J = self.skeleton.n_joints
         aa = params[..., :-3].reshape(params.shape[:-1] + (J, 3))
         rot6d = matrix_to_6d(axis_angle_to_matrix(aa))
         return torch.cat([rot6d.reshape(rot6d.shape[:-2] + (-1,)), params[..., -3:]], dim=-1)
 
+    def to_joints(self, params: torch.Tensor) -> torch.Tensor:
+        """Parameters (..., n_params) → joint positions (..., J, 3) in the items' frame (FK of
+        the pose vector; for ``xyz`` a reshape)."""
+        if self.config.representation == "xyz":
+            return params.reshape(params.shape[:-1] + (self.skeleton.n_joints, 3))
+        return pose_joints(self.skeleton, self.to_poses(params))
+
     def start_params(self, items: ActionItems) -> torch.Tensor:
-        """``x_0`` (N, n_params): the last initial pose, or the rest pose (module docstring)."""
+        """``x_0`` (N, n_params): the last initial pose, or the rest pose (module docstring;
+        for ``xyz`` without the initial pose, A2M's zero vector)."""
         if self.config.initial_pose:
             return self.to_params(pack_poses(items.initial)[:, -1])
         J, N = self.skeleton.n_joints, len(items)
+        if self.config.representation == "xyz":
+            return torch.zeros(N, self.n_params)
         rest = torch.eye(3).expand(N, J, 3, 3)
         poses = torch.cat([matrix_to_6d(rest).reshape(N, -1), torch.zeros(N, 3)], dim=-1)
         return self.to_params(poses)
@@ -248,7 +301,10 @@ class A2M(Generator):
             prev = x_hat if self_feed else x[:, t]
         pred = torch.stack(preds, 1)                                   # (B, T, n_params)
         kl = (torch.stack(kls, 1) * mask).sum(1).mean()
-        joints = pose_joints(self.skeleton, self.to_poses(pred))       # (B, T, J, 3)
+        if cfg.representation == "xyz":                                # positions: no FK
+            joints = pred.reshape(B, T, self.skeleton.n_joints, 3)
+        else:
+            joints = pose_joints(self.skeleton, self.to_poses(pred))   # (B, T, J, 3)
         rec = ((((joints - batch["joints"]) ** 2).mean((-1, -2))) * mask).sum(1).mean()
         loss = rec + cfg.lambda_kld * kl
         out = {"rec": rec.detach(), "kl": kl.detach()}
@@ -266,8 +322,14 @@ class A2M(Generator):
         target = pack_poses(items.action)
         with torch.no_grad():
             joints = pose_joints(self.skeleton, target)
-        return {"params": self.to_params(target), "joints": joints, "lengths": items.lengths,
-                "labels": items.labels, "start": self.start_params(items)}
+        if self.config.representation == "xyz":
+            params = joints.reshape(joints.shape[:2] + (-1,))         # the positions themselves
+            with torch.no_grad():
+                start = self.start_params(items)
+        else:
+            params, start = self.to_params(target), self.start_params(items)
+        return {"params": params, "joints": joints, "lengths": items.lengths,
+                "labels": items.labels, "start": start}
 
     @staticmethod
     def _crop(data: dict, idx: torch.Tensor) -> dict:
@@ -294,9 +356,10 @@ class A2M(Generator):
 
     # -- inference -----------------------------------------------------------------------------
     @torch.no_grad()
-    def generate_poses(self, cond_items: ActionItems, *, seed: int,
-                       use_mean: bool = False) -> torch.Tensor:
-        """(N, T_max, 6J+3) poses in the items' normalised frames (module docstring)."""
+    def generate_params(self, cond_items: ActionItems, *, seed: int,
+                        use_mean: bool = False) -> torch.Tensor:
+        """(N, T_max, n_params) raw parameters in the items' normalised frames (module
+        docstring); frames past an item's length are left as generated."""
         check_items(self, cond_items)
         cfg, net = self.config, self.net
         net.eval()
@@ -318,9 +381,37 @@ class A2M(Generator):
                 z = mu_p if use_mean else mu_p + torch.exp(0.5 * logvar_p) * eps[idx, t]
                 prev, h_dec = net.decoder(torch.cat([prev, c, z], -1), h_dec)
                 out[idx, t] = prev
-        return self.to_poses(out)
+        return out
+
+    def generate_poses(self, cond_items: ActionItems, *, seed: int,
+                       use_mean: bool = False) -> torch.Tensor:
+        """(N, T_max, 6J+3) poses in the items' normalised frames (module docstring);
+        ConfigError for ``xyz`` (no rotations)."""
+        self._need_rotations()
+        return self.to_poses(self.generate_params(cond_items, seed=seed, use_mean=use_mean))
+
+    def _need_rotations(self) -> None:
+        if self.config.representation == "xyz":
+            raise ConfigError(f"{self.method_id} with representation 'xyz' emits joint positions "
+                              "(a Motion needs rotations); use sample_joints")
 
     def sample(self, cond_items: ActionItems, *, seed: int, use_mean: bool = False) -> GeneratedItems:
-        """One action per item, in the world frame (see :meth:`generate_poses`)."""
+        """One action per item, in the world frame (see :meth:`generate_poses`); ConfigError
+        for ``xyz`` (use :meth:`sample_joints`)."""
+        self._need_rotations()
         poses = self.generate_poses(cond_items, seed=seed, use_mean=use_mean)
         return to_generated(self, cond_items, poses)
+
+    def sample_joints(self, cond_items: ActionItems, *, seed: int,
+                      use_mean: bool = False) -> torch.Tensor:
+        """(N, T_max, J, 3) float32 joint positions in metres, in the world frame, one action
+        per item, same seed → same bytes.  ``6d`` / ``lie``: ``self.sample(...).joints()``.
+        ``xyz``: the generated positions, frames past an item's length repeating its last
+        valid frame (as :meth:`sample` does), mapped back by the items' inverse normalisation
+        (``cond_items.canon.invert_points``; for ODMO's windows a translation by the window's
+        first-frame root)."""
+        if self.config.representation != "xyz":
+            return self.sample(cond_items, seed=seed, use_mean=use_mean).joints()
+        params = self.generate_params(cond_items, seed=seed, use_mean=use_mean)
+        joints = pad_last(self.to_joints(params.float()), cond_items.lengths)
+        return cond_items.canon.invert_points(joints)

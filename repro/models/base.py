@@ -87,6 +87,9 @@ GENERATOR_MODULES: dict[str, str] = {
     "ssmct": "repro.models.ssmct",
     "actor_ssmct": "repro.models.multiact_baselines",
     "interpolation": "repro.models.multiact_baselines",
+    "act_mocogan": "repro.models.act_mocogan",
+    "dlow_gen": "repro.models.dlow_gen",
+    "odmo": "repro.models.odmo",
 }
 _REGISTRY: dict[str, type["Generator"]] = {}
 

@@ -75,6 +75,13 @@ def _pieces(band, g, item: int | None):
     """(stem suffix, motion slices, meta) of every exported item of one row's samples."""
     if hasattr(g, "items_key"):  # MultiAct's samples (MultiActSamples)
         yield from _multiact_pieces(band, g, item)
+    elif not hasattr(g, "motion"):  # ODMO's joint-position windows (OdmoSamples, LatentSamples)
+        N, names = len(g), band.items.train.label_names
+        for i in (range(N) if item is None else [item]):
+            if not 0 <= i < N:
+                raise ConfigError(f"--item {i}: the samples are 0..{N - 1}")
+            yield f"item{i}", [(i, int(g.joints.shape[1]))], {
+                "item": i, "tag": names[int(g.labels[i])], "frames": int(g.joints.shape[1])}
     elif band.is_sequence:
         S, L = g.n_sequences, g.n_actions
         which = range(S) if item is None else [item]
@@ -146,35 +153,47 @@ def export_samples(rs, out: str | Path, *, row: str | None = None,
             g = b.load(r)
         except DataError as e:
             raise DataError(f"{rs.spec.id} run {rs.run_id}: row {r.row_id!r}: {e}") from None
+        if fmt == "bvh" and not hasattr(g, "motion"):
+            raise ConfigError(f"{rs.spec.id}: the samples of {b.protocol_id!r} are joint "
+                              "positions only (ODMO's xyz windows); BVH needs rotations: use "
+                              "--format npz")
         todo += [(r, b, g, *piece) for piece in _pieces(b, g, item)]  # checks `item`
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    for r, b, g, suffix, parts, meta in todo:
-        m = g.motion
-        sk = m.skeleton
-        root = torch.cat([m.root[i, :n] for i, n in parts]).double()
-        rot6d = torch.cat([m.rot6d[i, :n] for i, n in parts])
-        one = m.replace(root=root[None], rot6d=rot6d[None])
-        stem = f"{r.row_id}{f'-band{r.band}' if multi_band else ''}-r{r.replicate}-{suffix}"
-        if fmt == "bvh":
-            from repro.data.bandai import DUMMY_ROOT
+    def npz(name: str, sk, fps: float, r, meta: dict, **arrays) -> None:
+        buf = io.BytesIO()
+        np.savez_compressed(
+            buf, **arrays, names=np.array(sk.names), parents=np.array(sk.parents, dtype=np.int64),
+            fps=np.float64(fps), meta=np.array(json.dumps(
+                {"table": rs.spec.id, "run": rs.run_id, "row": r.row_id, **meta}, sort_keys=True)))
+        atomic_write_bytes(out / name, buf.getvalue())
 
-            name = f"{stem}.bvh"
-            write_bvh(out / name, sk, root.numpy(), one.rotmats()[0].double().numpy(), m.fps,
-                      dummy_root=DUMMY_ROOT if dummy_root else None)
+    for r, b, g, suffix, parts, meta in todo:
+        stem = f"{r.row_id}{f'-band{r.band}' if multi_band else ''}-r{r.replicate}-{suffix}"
+        if not hasattr(g, "motion"):  # joint positions only (ODMO's windows): npz
+            (i, n), = parts
+            name, fps = f"{stem}.npz", g.fps
+            npz(name, b.items.train.skeleton, fps, r, meta,
+                joints=np.asarray(g.joints[i, :n], np.float64))
         else:
-            name = f"{stem}.npz"
-            buf = io.BytesIO()
-            np.savez_compressed(
-                buf, joints=one.joints()[0].double().numpy(), root=root.numpy(),
-                rot6d=rot6d.double().numpy(), names=np.array(sk.names),
-                parents=np.array(sk.parents, dtype=np.int64), fps=np.float64(m.fps),
-                meta=np.array(json.dumps({"table": rs.spec.id, "run": rs.run_id,
-                                          "row": r.row_id, **meta}, sort_keys=True)))
-            atomic_write_bytes(out / name, buf.getvalue())
+            m = g.motion
+            sk, fps = m.skeleton, m.fps
+            root = torch.cat([m.root[i, :n] for i, n in parts]).double()
+            rot6d = torch.cat([m.rot6d[i, :n] for i, n in parts])
+            one = m.replace(root=root[None], rot6d=rot6d[None])
+            if fmt == "bvh":
+                from repro.data.bandai import DUMMY_ROOT
+
+                name = f"{stem}.bvh"
+                write_bvh(out / name, sk, root.numpy(), one.rotmats()[0].double().numpy(), fps,
+                          dummy_root=DUMMY_ROOT if dummy_root else None)
+            else:
+                name = f"{stem}.npz"
+                npz(name, sk, fps, r, meta, joints=one.joints()[0].double().numpy(),
+                    root=root.numpy(), rot6d=rot6d.double().numpy())
         record["files"].append({"file": name, "row": r.row_id, "band": r.band,
                                 "protocol": b.protocol_id, "replicate": r.replicate,
-                                "seed": r.seed, "fps": m.fps, **meta})
+                                "seed": r.seed, "fps": fps, **meta})
     atomic_write_bytes(out / "export.json",
                        (json.dumps(record, indent=1, sort_keys=True) + "\n").encode())
     return record

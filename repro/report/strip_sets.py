@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from repro.errors import DataError
-from repro.seeding import numpy_rng
+from repro.seeding import derive_seed, numpy_rng
 
 
 @dataclass
@@ -103,6 +103,50 @@ def _single_strips(band, rows, n_items: int, replicate: int, key_frames: int,
                          panels, frames,
                          {"band": band.index, "protocol": band.protocol_id, "item": i, "tag": tag,
                           "next_tag": nxt, "frames": L, "context_frames": K, "rows": shown,
+                          "replicate": replicate, "band_label": band.label}))
+    return out
+
+
+def _grounded(joints) -> np.ndarray:
+    """A window (first-frame root at the origin) lifted so its lowest joint touches y = 0
+    (display only: the strips draw the ground at y = 0)."""
+    j = np.asarray(joints, dtype=np.float32)
+    return j - np.array([0.0, float(j[..., 1].min()), 0.0], dtype=np.float32)
+
+
+def _window_strips(band, rows, n_items: int, replicate: int, key_frames: int,
+                   seed: int) -> list[Strip]:
+    """ODMO's label-conditioned windows (``odmo_generation``, ``trajectory_customisation``):
+    per picked sample position (one per tag, seeded), a real training window of the tag on top
+    (a real reference-set draw, never a scored clip) and every row's sample at that position
+    (same tag, same replicate seed); a customised sample names its target end point."""
+    from repro.eval.protocols.odmo_common import real_batch
+    from repro.render.strips import Panel, Segment, key_frame_indices
+
+    ctx = band.items
+    labels = np.asarray(rows[0][1].labels)
+    picks = _pick_items(labels, n_items, seed)
+    names = ctx.train.label_names
+    real = real_batch(ctx.train, 1, derive_seed(seed, "strips", "real"), "strips")
+    out = []
+    for i in picks:
+        tag = names[int(labels[i])]
+        T = int(rows[0][1].joints.shape[1])
+        segs = [Segment(0, T, tag)]
+        top = real.joints[int(np.flatnonzero(real.labels == labels[i])[0])]
+        panels = [Panel("Real (a training window)", _grounded(top), tag=tag, segments=segs)]
+        shown = []
+        for r, g in rows:
+            panels.append(Panel(r.label, _grounded(g.joints[i]), tag=tag, segments=segs))
+            shown.append(r.row_id)
+        target = getattr(rows[0][1], "targets", None)
+        extra = "" if target is None else \
+            f", target end ({', '.join(f'{v:.2f}' for v in target[i])}) m"
+        out.append(Strip(f"band{band.index}-sample{i}",
+                         f"{band.label}: sample {i}: {tag}, {T} frames{extra}",
+                         panels, key_frame_indices(T, key_frames, include=[0, T - 1]),
+                         {"band": band.index, "protocol": band.protocol_id, "item": i,
+                          "tag": tag, "frames": T, "context_frames": 0, "rows": shown,
                           "replicate": replicate, "band_label": band.label}))
     return out
 
@@ -196,7 +240,12 @@ def table_strips(rs, *, items: int = 2, replicate: int = 0, key_frames: int = 8,
             continue
         try:
             kind = multiact_kind(band)
-            if kind == "pairs":
+            if band.protocol_id == "latent_modes":
+                notes.append(f"{band.label}: no strips: its samples are real windows and "
+                             "their latent codes (Table 3 scores modes, not generations)")
+            elif band.protocol_id in ("odmo_generation", "trajectory_customisation"):
+                strips += _window_strips(band, loaded, items, replicate, key_frames, seed)
+            elif kind == "pairs":
                 strips += pair_strips(band, loaded, items, replicate, key_frames, seed)
             elif kind == "long_term":
                 strips += long_term_strips(band, loaded, items, replicate, max_actions)

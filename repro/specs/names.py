@@ -172,6 +172,16 @@ METRICS: Mapping[str, MetricInfo] = _freeze([
                "ODMO §4.3.1: relative APD decrease when real sequences are split by latent modes"),
     MetricInfo("dist_e", "dist_e", "", "lower",
                "ODMO §4.4: squared distance between target and generated end location"),
+    # harness columns, in none of the papers (repro.eval.protocols.latent_modes)
+    MetricInfo("style_nmi", "Style NMI", "", "higher",
+               "harness: normalised mutual information between latent modes and the stand-in's "
+               "recorded styles, per class then averaged"),
+    MetricInfo("style_ari", "Style ARI", "", "higher",
+               "harness: adjusted Rand index between latent modes and the recorded styles, per "
+               "class then averaged"),
+    MetricInfo("style_coverage", "Style coverage", "%", "higher",
+               "harness: share of a class's styles among mode-preserving sampled codes (each "
+               "takes its nearest encoded window's style), averaged over classes"),
     # harness columns, in none of the papers (repro.eval.memorisation)
     MetricInfo("nn_train_feat", "NN-train (features)", "", "closer_to_real",
                "harness: mean evaluator-feature distance of a sample to its nearest training "

@@ -26,6 +26,9 @@ PROTOCOL_MODULES: dict[str, str] = {
     "multiact_conditioned": "repro.eval.protocols.multiact_conditioned",
     "transition": "repro.eval.protocols.transition",
     "long_term": "repro.eval.protocols.long_term",
+    "odmo_generation": "repro.eval.protocols.odmo_generation",
+    "latent_modes": "repro.eval.protocols.latent_modes",
+    "trajectory_customisation": "repro.eval.protocols.trajectory_customisation",
 }
 _REGISTRY: dict[str, type] = {}
 

@@ -1,0 +1,319 @@
+"""ODMO's training data: fixed-length xyz windows of a clip pool, drawn afresh every epoch.
+
+ODMO (MM'22) §3.1, §4.1 and protocols.md §3.1, §3.9 (the reference loaders
+``dataloader_samplestart_rotate2xz[_pairwise].py``): a model sees windows of ``T`` frames of
+joint positions, the first frame's root at the origin, no rotation; every "epoch" is one
+class-balanced draw (ODMO's WeightedRandomSampler, class weight ∝ 1/count) of
+``windows_per_epoch`` windows with random starts (:mod:`repro.data.windows`).  The contrastive
+encoder trains on *pairs*: the partner has the anchor's class with probability 0.5
+(``same_class_p``), otherwise another class.
+
+:class:`WindowSource` describes how the pool is made from a prepared clip set (any clip set:
+it only reads ``joints``, ``lengths``, ``labels``, ``styles`` and the data set's stored
+``split``); its :meth:`~WindowSource.describe` enters the training key of every method trained
+on windows (``builder = "odmo_windows"``, :func:`repro.engine.steps.training_items`), so every
+ODMO protocol (Tables 1-4, S1) with equal fields shares one model.  :class:`WindowItems` is the
+pool itself: the training clips, never a test clip.
+
+Choices recorded here (docs/odmo.md):
+
+- **Partner class.**  The reference draws the different-class partner uniformly over classes
+  for MoCap and uniformly over samples for HumanAct12/UESTC; we draw it uniformly over the
+  *other classes* then uniformly over that class's clips (``partner = "class_uniform"``),
+  or uniformly over the other classes' clips (``"sample_uniform"``).
+- **Fixed windows for rotation methods.**  ACTOR and Action2Motion train on
+  :class:`~repro.models.items.ActionItems` (a fixed item set).  :meth:`WindowItems.as_action_items`
+  cuts ``action_windows_per_clip`` windows per pool clip at seeded random starts (the same
+  distribution as an epoch's draw), in the same frame: the window's first-frame root at the
+  origin, no rotation (``canon`` = a pure translation), so their samples land in ODMO's frame.
+  Their ``initial`` motion is one frame, the window's first (read only by methods that use an
+  initial pose; the ODMO rows switch it off).
+- ``scale`` multiplies positions (ODMO divides CMU MoCap by 20, a unit change of that data;
+  the stand-in is in metres, so 1).  ``y_weight`` is ODMO's per-data-set weight of the
+  vertical axis in the trajectory and motion losses (``param_*.py``: 5 HumanAct12/UESTC,
+  1 MoCap); it lives here because it belongs to the data set, not to a table row.
+
+Units: metres × ``scale``, frames at the clip set's fps.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import torch
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from repro.data.clipset import TEST, TRAIN
+from repro.data.windows import WindowBatch, cut_windows, window_starts
+from repro.errors import ConfigError, DataError
+from repro.keys import content_key
+from repro.seeding import numpy_rng
+
+__all__ = ["WindowSource", "WindowItems", "WINDOWS_VERSION"]
+
+#: bumped when the construction of windows changes (enters ``describe()``)
+WINDOWS_VERSION = 1
+
+
+class WindowSource(BaseModel):
+    """How ODMO's window pool is made from a data set (module docstring).  Every field enters
+    :meth:`describe` and so the content keys of the models trained on it."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    builder: Literal["odmo_windows"] = "odmo_windows"  # the engine dispatches on this
+    window: int = Field(60, ge=2)            # T: 60 HumanAct12 / UESTC, 100 MoCap (§3.1)
+    split: Literal["dataset"] = "dataset"    # the data set's stored train / test split
+    include_last: bool = False               # the reference's exclusive start bound (§3.1)
+    scale: float = Field(1.0, gt=0)          # position factor (MoCap: 1/20; metres: 1)
+    y_weight: float = Field(5.0, gt=0)       # ODMO's y-axis loss weight for this data set
+    partner: Literal["class_uniform", "sample_uniform"] = "class_uniform"
+    same_class_p: float = Field(0.5, ge=0, le=1)  # P(partner has the anchor's class)
+    action_windows_per_clip: int = Field(4, ge=1)  # fixed windows per clip (ACTOR, A2M)
+    seed: int = 0                            # seeds the fixed windows
+
+    def describe(self) -> dict:
+        return {**self.model_dump(mode="json"), "version": WINDOWS_VERSION}
+
+    def key(self) -> str:
+        return content_key(self.describe())
+
+    @classmethod
+    def make(cls, where: str, **fields) -> "WindowSource":
+        """Validated construction; a bad field is a ConfigError naming ``where``."""
+        try:
+            return cls(**fields)
+        except ValidationError as e:
+            err = e.errors()[0]
+            field = ".".join(str(p) for p in err.get("loc", ())) or "?"
+            raise ConfigError(f"{where}: window field {field!r}: {err['msg']}") from None
+
+    @classmethod
+    def from_description(cls, d: dict) -> "WindowSource":
+        """Inverse of :meth:`describe` (the version must match)."""
+        d = dict(d)
+        v = d.pop("version", None)
+        if v != WINDOWS_VERSION:
+            raise DataError(f"window source version {v!r}, this code makes {WINDOWS_VERSION}")
+        return cls.make("items", **d)
+
+    def split_clipset(self, clipset):
+        """The clip set with the split the windows use (the data set's own)."""
+        return clipset
+
+    def pool(self, clipset, split: int) -> "WindowItems":
+        """The clips of ``split`` (TRAIN or TEST) as a window pool."""
+        if split not in (TRAIN, TEST):
+            raise ValueError(f"split must be TRAIN or TEST, got {split!r}")
+        idx = clipset.indices(split=split)
+        if idx.size == 0:
+            raise DataError(f"data set {clipset.name!r}: no {'train' if split == TRAIN else 'test'}"
+                            " clip for ODMO's windows")
+        return WindowItems(clipset, idx, self)
+
+    def train_items(self, clipset) -> "WindowItems":
+        """The training pool: every clip of the train split (never a test clip)."""
+        return self.pool(clipset, TRAIN)
+
+
+@dataclass(frozen=True, eq=False)
+class WindowItems:
+    """A pool of clips to cut ODMO windows from (module docstring).
+
+    ``indices`` (N,) clip rows of ``clipset``; ``labels``, ``styles``, ``clip_index`` (N,) int64
+    tensors (one per pool clip; ``clip_index`` is what :func:`repro.train.validation.holdout`
+    groups by).  Draws return :class:`~repro.data.windows.WindowBatch` es (positions × scale)."""
+
+    clipset: object
+    indices: np.ndarray
+    source: WindowSource
+
+    def __post_init__(self) -> None:
+        idx = np.asarray(self.indices, dtype=np.int64).reshape(-1)
+        object.__setattr__(self, "indices", idx)
+
+    # -- basics ----------------------------------------------------------------------------
+    def __len__(self) -> int:
+        return int(self.indices.size)
+
+    @property
+    def window(self) -> int:
+        return self.source.window
+
+    @property
+    def y_weight(self) -> float:
+        return self.source.y_weight
+
+    @property
+    def skeleton(self):
+        return self.clipset.skeleton
+
+    @property
+    def fps(self) -> float:
+        return float(self.clipset.fps)
+
+    @property
+    def n_joints(self) -> int:
+        return self.clipset.skeleton.n_joints
+
+    @property
+    def label_names(self) -> tuple[str, ...]:
+        return tuple(self.clipset.label_names)
+
+    @property
+    def style_names(self) -> tuple[str, ...]:
+        return tuple(self.clipset.style_names)
+
+    @property
+    def n_classes(self) -> int:
+        return len(self.label_names)
+
+    @property
+    def labels(self) -> torch.Tensor:
+        return torch.from_numpy(self.clipset.labels[self.indices].astype(np.int64))
+
+    @property
+    def styles(self) -> torch.Tensor:
+        return torch.from_numpy(self.clipset.styles[self.indices].astype(np.int64))
+
+    @property
+    def clip_index(self) -> torch.Tensor:
+        return torch.from_numpy(self.indices.copy())
+
+    def key(self) -> str:
+        """Content key of the pool: source, data fingerprint, clip rows."""
+        return content_key({"windows": self.source.describe(),
+                            "data": str(self.clipset.fingerprint),
+                            "clips": content_key(self.indices.tolist())})
+
+    def subset(self, index) -> "WindowItems":
+        pos = np.asarray(index, dtype=np.int64).reshape(-1)
+        return WindowItems(self.clipset, self.indices[pos], self.source)
+
+    def classes_present(self) -> np.ndarray:
+        return np.unique(self.clipset.labels[self.indices])
+
+    # -- windows ---------------------------------------------------------------------------
+    def cut(self, clips, starts) -> WindowBatch:
+        """Windows of the given clip rows and starts (positions × ``scale``)."""
+        b = cut_windows(self.clipset, clips, starts, self.window)
+        if self.source.scale != 1.0:
+            s = np.float32(self.source.scale)
+            b = WindowBatch(joints=b.joints * s, origin=b.origin * s, indices=b.indices,
+                            starts=b.starts, valid=b.valid, labels=b.labels)
+        return b
+
+    def random_cut(self, clips, rng: np.random.Generator) -> WindowBatch:
+        """One window per clip row in ``clips`` at a random start (§3.1)."""
+        clips = np.asarray(clips, dtype=np.int64)
+        starts = window_starts(self.clipset.lengths[clips], self.window, rng,
+                               include_last=self.source.include_last)
+        return self.cut(clips, starts)
+
+    def balanced_clips(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """``n`` clip rows, a class uniformly then a clip of it uniformly (with replacement)."""
+        labels = self.clipset.labels[self.indices]
+        classes = np.unique(labels)
+        pick = classes[rng.integers(0, classes.size, size=int(n))]
+        out = np.empty(int(n), dtype=np.int64)
+        for c in classes:
+            where = np.flatnonzero(pick == c)
+            if where.size:
+                pool = self.indices[labels == c]
+                out[where] = pool[rng.integers(0, pool.size, size=where.size)]
+        return out
+
+    def draw(self, n: int, rng: np.random.Generator) -> WindowBatch:
+        """One epoch's class-balanced draw of ``n`` windows."""
+        return self.random_cut(self.balanced_clips(n, rng), rng)
+
+    def partner_clips(self, anchors: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """A partner clip per anchor clip row: same class w.p. ``same_class_p``, else another
+        class (``partner`` rule); a class with no other class present pairs with itself."""
+        anchors = np.asarray(anchors, dtype=np.int64)
+        labels = self.clipset.labels
+        pool_labels = labels[self.indices]
+        classes = np.unique(pool_labels)
+        same = rng.random(anchors.size) < self.source.same_class_p
+        out = np.empty_like(anchors)
+        for i, a in enumerate(anchors):
+            c = labels[a]
+            if same[i] or classes.size < 2:
+                pool = self.indices[pool_labels == c]
+            elif self.source.partner == "class_uniform":
+                others = classes[classes != c]
+                pool = self.indices[pool_labels == others[rng.integers(0, others.size)]]
+            else:
+                pool = self.indices[pool_labels != c]
+            out[i] = pool[rng.integers(0, pool.size)]
+        return out
+
+    def draw_pairs(self, n: int, rng: np.random.Generator) -> tuple[WindowBatch, WindowBatch]:
+        """``n`` (anchor, partner) windows: anchors class-balanced, partners by
+        :meth:`partner_clips` (ODMO's pairwise loader)."""
+        a = self.balanced_clips(n, rng)
+        p = self.partner_clips(a, rng)
+        return self.random_cut(a, rng), self.random_cut(p, rng)
+
+    def fixed_windows(self) -> WindowBatch:
+        """``action_windows_per_clip`` windows per pool clip at seeded random starts (the
+        fixed set rotation-based methods train on), clip-major."""
+        k = self.source.action_windows_per_clip
+        clips = np.repeat(self.indices, k)
+        rng = numpy_rng(self.source.seed, "odmo_windows", "fixed")
+        return self.random_cut(clips, rng)
+
+    def as_action_items(self):
+        """:meth:`fixed_windows` as :class:`~repro.models.items.ActionItems` (ACTOR and
+        Action2Motion train on them; :meth:`action_items`)."""
+        return self.action_items(self.fixed_windows())
+
+    def action_items(self, b: WindowBatch):
+        """Windows ``b`` as :class:`~repro.models.items.ActionItems` (module docstring):
+        rotations from the clip set, the window's first-frame root at the origin, no rotation;
+        duration ``window`` for all; initial motion = the window's first frame; next tag = the
+        item's own tag (unused by these methods)."""
+        from repro.models.items import ActionItems, ItemsConfig
+        from repro.motion.canon import root_to_origin
+        from repro.motion.motion import Motion
+
+        if self.source.scale != 1.0:
+            raise ConfigError("windows with scale != 1 have no rotation form (ACTOR, A2M need one)")
+        m = Motion.from_clipset(self.clipset, b.indices, b.starts, self.window, pad=True)
+        m, canon = root_to_origin(m, 0)
+        N, T = m.batch_size, m.n_frames
+        labels = torch.from_numpy(b.labels.astype(np.int64))
+        return ActionItems(
+            initial=m.slice_time(0, 1), action=m, lengths=torch.full((N,), T, dtype=torch.long),
+            labels=labels, next_labels=labels.clone(),
+            trajectory=m.root[..., [0, 2]].clone(), in_place=torch.zeros(N, dtype=torch.bool),
+            canon=canon, label_names=self.label_names,
+            styles=torch.from_numpy(self.clipset.styles[b.indices].astype(np.int64)),
+            clip_index=torch.from_numpy(b.indices.copy()),
+            config=ItemsConfig(n_init=1, max_frames=T), source=self.key())
+
+
+def label_condition_items(label_names, labels, window: int, skeleton, fps: float, placeholder):
+    """Label-only condition items for ACTOR / Action2Motion in ODMO's protocols: tag and
+    duration ``window`` per item, identity canon (samples come back in the window frame),
+    initial motion = ``placeholder`` (a (1, 1) Motion from the *training* pool, never from a
+    scored clip; read only by methods that use an initial pose)."""
+    from repro.models.items import ActionItems, ItemsConfig
+    from repro.motion.canon import CanonParams
+
+    labels = torch.as_tensor(np.asarray(labels, np.int64))
+    N = int(labels.numel())
+    init = placeholder.select(torch.zeros(N, dtype=torch.long))
+    init = init.replace(root=torch.zeros_like(init.root))
+    action = init.replace(root=init.root.expand(N, window, 3).clone(),
+                          rot6d=init.rot6d.expand(N, window, *init.rot6d.shape[2:]).clone())
+    eye = torch.eye(3, dtype=init.dtype).expand(N, 3, 3).clone()
+    canon = CanonParams("root_to_origin", eye, torch.zeros(N, 3, dtype=init.dtype),
+                        torch.zeros(N, dtype=torch.long), {"translation": "xyz"})
+    return ActionItems(
+        initial=init, action=action, lengths=torch.full((N,), int(window), dtype=torch.long),
+        labels=labels, next_labels=labels.clone(), trajectory=torch.zeros(N, window, 2),
+        in_place=torch.zeros(N, dtype=torch.bool), canon=canon, label_names=tuple(label_names),
+        config=ItemsConfig(n_init=1, max_frames=int(window)))
