@@ -158,6 +158,14 @@ class OdmoContext:
     def __len__(self) -> int:
         return int(self.labels.size)
 
+    @property
+    def skeleton(self):
+        return self.train.skeleton
+
+    @property
+    def label_names(self) -> tuple[str, ...]:
+        return self.train.label_names
+
 
 def real_batch(pool, per_class: int, seed: int, *tag):
     """ODMO's real reference set (protocols.md §3.2) as a WindowBatch: ``per_class`` windows
