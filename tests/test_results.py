@@ -294,8 +294,6 @@ OD_ALL = [(s, p) for s, ps in OD_RUNS.items() for p in ps]
 
 def test_there_are_odmo_records_for_every_spec():
     for scale, records in OD_RUNS.items():
-        if scale == "medium" and not records:  # until the medium run lands
-            continue
         assert {_run(p)[0]["table"] for p in records} == ODMO, scale
 
 
@@ -308,8 +306,6 @@ def test_odmo_record_matches_its_baseline_and_its_values(scale, path):
 
 def test_odmo_table3_has_the_style_columns():
     for scale, records in OD_RUNS.items():
-        if not records:  # medium, until its run lands
-            continue
         (t3,) = [p for p in records if _run(p)[0]["table"] == "odmo/table3"]
         cells = _run(t3)[1]["cells"]
         for row in ("odmo", "actor"):

@@ -19,6 +19,10 @@ DISC_R = 2.5       # joint disc radius, px
 TRAJ_ID, DOT_ID = 3, 4   # colour ids of the top view's polyline and its plain dots
 
 
+#: characters Pillow's built-in font lacks, drawn as their plain forms (ODMO's "−L_es(θ)")
+_PLAIN = str.maketrans({"\u2212": "-", "\u03b8": "theta", "\u03c3": "sigma", "\u00b2": "^2"})
+
+
 @lru_cache(maxsize=8)
 def font(size: int):
     return ImageFont.load_default(size=size)
@@ -152,7 +156,7 @@ def draw_texts(canvas, texts):
     draw = ImageDraw.Draw(layer)
     for x, y, s, size, rgb in texts:
         if s:
-            draw.text((x, y), s, font=font(size), fill=(*rgb, 255))
+            draw.text((x, y), s.translate(_PLAIN), font=font(size), fill=(*rgb, 255))
     t = np.asarray(layer)
     hit = np.nonzero(t[..., 3])
     src = t[hit].astype(np.float32) / 255.0
