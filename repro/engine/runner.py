@@ -43,15 +43,6 @@ def _scale(name: str, dataset: str | None):
     return resolve_scale(name, dataset)
 
 
-def _band_protocol_class(band):
-    from repro.eval.protocols import protocol_class
-
-    try:
-        return protocol_class(band.protocol)
-    except Exception:  # a protocol that is not built: no note
-        return None
-
-
 def _group_lines(plan) -> list[str]:
     """One line per column group that sets its own protocol parameters: what the group (a
     paper data set) is on the data set actually run, with the values the run resolved (scale
@@ -110,12 +101,11 @@ def _footer(plan, evaluators: dict[str, Any], run_id: str | None,
     for desc in evaluators.values():
         lines.append(f"Evaluator: {desc}")
     lines += _group_lines(plan)
-    notes = []
-    for b in plan.bands:
-        note = getattr(_band_protocol_class(b), "footer_note", None) if b.implemented else None
-        if note and note not in notes:
-            notes.append(note)
-    lines += notes
+    from repro.eval.protocols import protocol_class
+
+    notes = [getattr(protocol_class(b.protocol), "footer_note", None) for b in plan.bands
+             if b.implemented]  # a band is implemented only when its protocol is importable
+    lines += [n for i, n in enumerate(notes) if n and n not in notes[:i]]
     for b in plan.bands:
         if not b.implemented:
             lines.append(f"Columns {', '.join(b.columns)}: {b.reason}.")

@@ -55,13 +55,19 @@ def per_class_windows(clipset: ClipSet, pool: np.ndarray, per_class: int, window
     """Exactly ``per_class`` windows of every class present in ``pool`` (clips drawn uniformly
     with replacement within the class, random starts), classes in index order (ODMO's real
     reference sets, protocols.md §3.2)."""
+    clips = per_class_clips(clipset, pool, per_class, rng)
+    return _out(odmo_windows(clipset, clips, window, rng, include_last=include_last))
+
+
+def per_class_clips(clipset: ClipSet, pool, per_class: int, rng: np.random.Generator) -> np.ndarray:
+    """``per_class`` clip rows of every class present in ``pool``, drawn uniformly with
+    replacement within the class, classes in index order (the clips of ODMO's real sets)."""
     pool = np.asarray(pool, dtype=np.int64)
     clips = []
     for c in np.unique(clipset.labels[pool]):
         members = pool[clipset.labels[pool] == c]
         clips.append(members[rng.integers(0, members.size, size=per_class)])
-    clips = np.concatenate(clips)
-    return _out(odmo_windows(clipset, clips, window, rng, include_last=include_last))
+    return np.concatenate(clips)
 
 
 def tiling_windows(clipset: ClipSet, pool: np.ndarray, window: int, stride: int

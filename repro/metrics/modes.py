@@ -37,7 +37,7 @@ kept.  APD is :func:`repro.metrics.apd.apd` (units of the motions; the ratio is 
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -161,11 +161,15 @@ def select_k(codes, rule: Rule = "code", seed: int = 0, unique: bool = True,
 
 @dataclass(frozen=True)
 class ClassModes:
-    """Modes of one class: K chosen, kept components and each code's mode index."""
+    """Modes of one class: K chosen, kept components and each code's mode index; ``mixture``
+    (the fitted GaussianMixture of the K chosen) and ``counts`` (K,) (hard assignments of the
+    fitted codes) let a sampler draw from the same fit (:func:`repro.models.odmo.mode_preserving_codes`)."""
 
     selection: KSelection
     kept: tuple[int, ...]
     assignment: np.ndarray  # (N,) component index per input code; -1 = excluded
+    mixture: object = field(default=None, repr=False, compare=False)
+    counts: np.ndarray | None = field(default=None, repr=False, compare=False)
 
 
 def discover_modes(codes, rule: Rule = "code", seed: int = 0, unique: bool = True,
@@ -191,7 +195,8 @@ def discover_modes(codes, rule: Rule = "code", seed: int = 0, unique: bool = Tru
         assignment = np.where(np.isin(best, kept), best, -1)
     else:
         raise DataError(f"small_modes must be 'reassign' or 'exclude', got {small_modes!r}")
-    return ClassModes(selection=selection, kept=tuple(int(k) for k in kept), assignment=assignment)
+    return ClassModes(selection=selection, kept=tuple(int(k) for k in kept), assignment=assignment,
+                      mixture=gmm, counts=counts)
 
 
 def _apd_of(x: np.ndarray) -> float:

@@ -177,21 +177,22 @@ def _gaussian(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def mode_preserving_codes(codes: np.ndarray, n: int, *, rule: str, seed: int,
-                          rng: np.random.Generator) -> np.ndarray:
-    """``n`` codes of one class by mode-preserving sampling (module docstring)."""
-    from repro.metrics.modes import RULES, select_k
+                          rng: np.random.Generator, modes=None) -> np.ndarray:
+    """``n`` codes of one class by mode-preserving sampling (module docstring): the GMM, its
+    kept components and their counts are :func:`repro.metrics.modes.discover_modes`' fit of the
+    class's distinct codes (K chosen under ``rule``, ``n_init`` 5, ``random_state`` from
+    ``seed``); ``modes``: that result when the caller already has it (Table 3 scores the same
+    fit), so it is not fitted twice."""
+    from repro.metrics.modes import RULES, discover_modes
 
     if rule not in RULES:
         raise ConfigError(f"odmo: unknown K rule {rule!r} (use one of {sorted(RULES)})")
     spec, uniq = RULES[rule], np.unique(np.asarray(codes, np.float64), axis=0)
     if uniq.shape[0] < spec.k_min + 1:
         return rng.multivariate_normal(*_gaussian(uniq), size=int(n))
-    gseed = int(seed) % _U32
-    k = select_k(uniq, rule=rule, seed=gseed, unique=False).k
-    gmm = _fit(_gmm(k, gseed, n_init=5), uniq)
-    counts = np.bincount(gmm.predict(uniq), minlength=k)
-    keep = counts > (0 if spec.drop_at_most is None else spec.drop_at_most)
-    kept = np.flatnonzero(keep) if keep.any() else np.array([int(np.argmax(counts))])
+    if modes is None:
+        modes = discover_modes(codes, rule=rule, seed=int(seed) % _U32, n_init=5)
+    gmm, counts, kept = modes.mixture, modes.counts, np.asarray(modes.kept, dtype=np.int64)
     alloc = (int(n) * counts[kept]) // counts[kept].sum()
     alloc[0] += int(n) - int(alloc.sum())
     parts = [rng.multivariate_normal(gmm.means_[c], gmm.covariances_[c], size=int(m))

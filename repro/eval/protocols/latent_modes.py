@@ -158,7 +158,7 @@ class LatentModes(OdmoProtocol):
             nmi.append(normalized_mutual_info_score(styles[inside], modes.assignment[inside]))
             ari.append(adjusted_rand_score(styles[inside], modes.assignment[inside]))
             drawn = mode_preserving_codes(codes, p.codes_per_class, rule=p.k_rule, seed=gseed,
-                                          rng=np.random.default_rng(gseed))
+                                          rng=np.random.default_rng(gseed), modes=modes)
             d2 = ((drawn[:, None, :] - codes[None, :, :]) ** 2).sum(-1)
             hit = np.unique(styles[np.argmin(d2, axis=1)])
             cover.append(100.0 * hit.size / np.unique(styles).size)

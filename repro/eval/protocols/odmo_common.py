@@ -170,13 +170,10 @@ class OdmoContext:
 def real_batch(pool, per_class: int, seed: int, *tag):
     """ODMO's real reference set (protocols.md §3.2) as a WindowBatch: ``per_class`` windows
     of every class of ``pool`` (clips with replacement, random starts), classes in index order."""
+    from repro.eval.sampling import per_class_clips
+
     rng = numpy_rng(seed, "odmo", "real-set", *tag)
-    labels = pool.clipset.labels[pool.indices]
-    clips = []
-    for c in np.unique(labels):
-        members = pool.indices[labels == c]
-        clips.append(members[rng.integers(0, members.size, size=per_class)])
-    return pool.random_cut(np.concatenate(clips), rng)
+    return pool.random_cut(per_class_clips(pool.clipset, pool.indices, per_class, rng), rng)
 
 
 def real_set(pool, per_class: int, seed: int, *tag):
