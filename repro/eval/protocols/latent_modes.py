@@ -23,7 +23,8 @@ Columns:
   the discovered modes and the windows' styles, per class then averaged over classes;
   ``style_coverage`` (%) — per class, ``codes_per_class`` codes are drawn by ODMO's
   mode-preserving sampler from that class's codes (the same sampler on either latent space,
-  :func:`repro.models.odmo.mode_preserving_codes`), each takes the style of its nearest
+  :func:`repro.models.odmo.mode_preserving_codes`, drawing from the very GMM the modes were
+  discovered with, ``gmm_inits`` initialisations), each takes the style of its nearest
   encoded window of the class, and the share of the class's styles present among them is
   averaged over classes.
 
