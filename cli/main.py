@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import re
 import sys
 
 from repro import __version__
@@ -27,8 +28,16 @@ COMMAND_MODULES = (
 )
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser whose usage errors quote long values clipped, as repro's own errors
+    (:func:`_one_line`); its sub-command parsers are of the same class."""
+
+    def error(self, message: str):
+        super().error(_one_line(message))
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="repro",
         description="Reproduce the tables of Neural Marionette, MultiAct and ODMO, "
         "with intervals and verdicts.",
@@ -46,16 +55,24 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-#: an error message longer than this is shortened in the middle (a value quoted in it may be
-#: megabytes long: a 5,000,000-digit number, a pasted file)
+#: a run of non-blank characters longer than this in an error message (a value quoted from
+#: the input: a 5,000,000-digit number, a pasted line) is shortened in the middle
+MAX_QUOTE_CHARS = 200
+#: ... and a whole message longer than this (many long words) too
 MAX_ERROR_CHARS = 2000
+_LONG_WORD = re.compile(r"\S{%d,}" % (MAX_QUOTE_CHARS + 1))
+
+
+def _shorten(text: str, limit: int) -> str:
+    half = limit // 2 - 20
+    return f"{text[:half]}…[{len(text) - 2 * half} characters left out]…{text[-half:]}"
 
 
 def _one_line(msg: str) -> str:
-    if len(msg) <= MAX_ERROR_CHARS:
-        return msg
-    half = MAX_ERROR_CHARS // 2
-    return f"{msg[:half]} … [{len(msg) - 2 * half} characters left out] … {msg[-half:]}"
+    """The message as printed: each quoted run clipped to ~:data:`MAX_QUOTE_CHARS`, the whole
+    to ~:data:`MAX_ERROR_CHARS`."""
+    msg = _LONG_WORD.sub(lambda m: _shorten(m.group(0), MAX_QUOTE_CHARS), msg)
+    return msg if len(msg) <= MAX_ERROR_CHARS else _shorten(msg, MAX_ERROR_CHARS)
 
 
 def _dataset_specs(args) -> None:

@@ -409,7 +409,8 @@ def test_write_cache_keeps_a_published_cache_when_not_replacing(tmp_path):
 
 def test_folder_source_refuses_symlinks_out_of_the_folder(tmp_path):
     """Issue 16 (part): a folder source no longer follows a .bvh symlink out of the folder;
-    prepare ends with one error naming the link, and the fingerprint ignores it."""
+    prepare ends with one error naming the link, already when the source is fingerprinted
+    (before a cached copy could be reused)."""
     import pytest
 
     from repro.data.sources import source_fingerprint
@@ -421,6 +422,11 @@ def test_folder_source_refuses_symlinks_out_of_the_folder(tmp_path):
     outside.write_bytes(next((tmp_path / "src" / "data").glob("*.bvh")).read_bytes())
     link = tmp_path / "src" / "data" / "zz_walk_active_9.bvh"
     link.symlink_to(outside)
+    with pytest.raises(DataError, match="symbolic link that leads out") as e:
+        source_fingerprint(tmp_path / "src")
+    assert "zz_walk_active_9.bvh" in str(e.value)
+    link.unlink()
     assert source_fingerprint(tmp_path / "src") == before
+    link.symlink_to(outside)
     with pytest.raises(DataError, match="symbolic link that leads out"):
         prepare_bandai2(tmp_path / "src", card=TOY_CARD, workers=0)

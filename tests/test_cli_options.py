@@ -61,17 +61,25 @@ def test_rescore_without_an_earlier_run_says_so_and_trains_nothing(tmp_path):
 def test_a_huge_value_quoted_in_an_error_is_shortened(tmp_path):
     out = _repro("run", "marionette/table1", "--seeds", "1" * 100_000 + "x", home=tmp_path)
     assert out.returncode == 2 and "Traceback" not in out.stderr
-    assert len(out.stderr) < 5000
+    assert len(out.stderr) < 400
+    # argparse's own refusals too (the usage lines aside, the error line is clipped)
+    out = _repro("run", "marionette/table1", "--jobs", "1" * 5000, home=tmp_path)
+    assert out.returncode == 2 and "Traceback" not in out.stderr
+    line = out.stderr.strip().splitlines()[-1]
+    assert "--jobs" in line and "characters left out" in line and len(line) < 400
 
 
 def test_error_messages_are_shortened_in_the_middle():
-    from cli.main import MAX_ERROR_CHARS, _one_line
+    from cli.main import MAX_ERROR_CHARS, MAX_QUOTE_CHARS, _one_line
 
     assert _one_line("short") == "short"
     long = "a" * 3000 + "b" * 3000
-    got = _one_line(long)
-    assert len(got) < MAX_ERROR_CHARS + 100 and got.startswith("a") and got.endswith("b")
+    got = _one_line(long)  # one long word: clipped to ~MAX_QUOTE_CHARS
+    assert len(got) < MAX_QUOTE_CHARS + 50 and got.startswith("a") and got.endswith("b")
     assert "characters left out" in got
+    words = " ".join(["w" * 150] * 100)  # many words under the quote cap: the whole is capped
+    got = _one_line(f"file x.bvh: {words}")
+    assert len(got) < MAX_ERROR_CHARS + 50 and got.startswith("file x.bvh: ")
 
 
 def test_a_deeply_nested_spec_is_one_clear_error(tmp_path):

@@ -121,7 +121,8 @@ def _cli(*args, env=None, check=True):
 
 
 def test_prepared_joints_are_the_written_motion_turned_y_up_in_metres(labtest, _repro_home):
-    from repro.data.dataset_spec import prepare_dataset, register_spec_path
+    from repro.data.dataset_prepare import prepare_dataset
+    from repro.data.dataset_spec import register_spec_path
     from repro.data.registry import load_clipset
     from repro.motion.skeleton import Skeleton, forward_kinematics
 
@@ -177,7 +178,8 @@ def test_an_asf_amc_data_set_prepares_from_its_spec(tmp_path, monkeypatch, _repr
     """ASF/AMC files (the CMU format) through a spec: labels from the file names, inches."""
     from repro.data import registry
     from repro.data.asf_amc import parse_amc, parse_asf, to_skeleton_motion
-    from repro.data.dataset_spec import prepare_dataset, register_spec_path
+    from repro.data.dataset_prepare import prepare_dataset
+    from repro.data.dataset_spec import register_spec_path
     from repro.motion.skeleton import forward_kinematics
     from test_asf_amc import make_motion, write_amc, write_asf
 
@@ -226,7 +228,8 @@ def test_the_stand_in_declared_by_a_spec_equals_the_built_in(bandai_archive, mon
     bandai2's clips, labels, styles, split and motion (float32 storage: equal to 1e-6 m)."""
     from repro.data import registry
     from repro.data.bandai import load_bandai2, prepare_bandai2
-    from repro.data.dataset_spec import prepare_dataset, register_spec_path
+    from repro.data.dataset_prepare import prepare_dataset
+    from repro.data.dataset_spec import register_spec_path
 
     monkeypatch.setenv("REPRO_DATASETS", "")
     registry.reset()
@@ -254,7 +257,8 @@ def test_registration_staleness_and_label_files(labtest, _repro_home):
     """Only the spec file is registered (a pyproject.toml beside it is no data set); a copy
     prepared before the labels changed is not loaded; label files are checked, BOM and all."""
     from repro.data import registry
-    from repro.data.dataset_spec import prepare_dataset, register_spec_path
+    from repro.data.dataset_prepare import prepare_dataset
+    from repro.data.dataset_spec import register_spec_path
     from repro.errors import DataError, MissingDataError
 
     (labtest.parent / "pyproject.toml").write_text("[project]\nname = 'x'\n")

@@ -123,7 +123,8 @@ def _prepare(args: argparse.Namespace) -> int:
 
 def _prepare_spec(args: argparse.Namespace, spec_file) -> int:
     """A data set declared by a spec file (repro.data.dataset_spec)."""
-    from repro.data.dataset_spec import prepare_dataset, register_spec_path
+    from repro.data.dataset_prepare import prepare_dataset
+    from repro.data.dataset_spec import register_spec_path
     from repro.data.registry import clipset_summary, get_entry
     from repro.errors import ConfigError
 
@@ -133,16 +134,40 @@ def _prepare_spec(args: argparse.Namespace, spec_file) -> int:
     name = register_spec_path(str(spec_file))
     res = prepare_dataset(spec_file, force=args.force)
     summary = clipset_summary(get_entry(name).load())
+    card = json.loads((res.path / "meta.json").read_text())["card"]
     if args.json:
         print(json.dumps({"name": name, "path": str(res.path), "fingerprint": res.fingerprint,
                           "reused": res.reused, "seconds": round(res.seconds, 2),
-                          "card": summary}, indent=1))
+                          "card": summary, "prepared_card": card}, indent=1))
         return 0
     how = "already prepared" if res.reused else "prepared"
     print(f"{name}: {how}: {res.clips} clips, {res.frames} frames in {res.seconds:.1f} s "
           f"-> {res.path}")
     _print_summary(summary)
+    _print_declared_card(card)
     return 0
+
+
+def _print_declared_card(card: dict) -> None:
+    """A declared data set's card beyond the counts: per-class durations, subjects, and what
+    the source held that was not read."""
+    from rich.console import Console
+    from rich.table import Table
+
+    con = Console()
+    t = Table("class", "clips", "frames", "mean s", "total s", title="per class")
+    for k, v in card["per_class"].items():
+        t.add_row(k, str(v["clips"]), str(v["frames"]), f"{v['seconds_mean']:.2f}",
+                  f"{v.get('seconds_total', 0.0):.1f}")
+    con.print(t)
+    if card.get("subjects"):
+        con.print(f"subjects: {card['subjects']}")
+    for key, what in (("skipped_files", "file(s) in the source matched no pattern"),
+                      ("unused_label_rows", "label row(s) name no clip of the source")):
+        d = card.get(key) or {}
+        if d.get("count"):
+            more = " …" if d["count"] > len(d["first"]) else ""
+            con.print(f"{d['count']} {what}: {', '.join(d['first'])}{more}")
 
 
 def _check_spec(args: argparse.Namespace) -> int:

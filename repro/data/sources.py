@@ -34,11 +34,17 @@ MAX_TAR_HEADER_BYTES = 1024 ** 2
 
 def source_fingerprint(source: Path) -> str:
     """sha256 of the archive bytes, or for a folder the content key of the sorted
-    (relative name, sha256) list of its files."""
+    (relative name, sha256) list of its files.  A folder holding a symbolic link that leads
+    out of it is refused here, before any cached copy could be reused (DataError naming it)."""
     from repro.keys import content_key, sha256_file
 
     if source.is_dir():
-        files = sorted(p for p in source.rglob("*") if inside(p, source) and p.is_file())
+        entries = sorted(source.rglob("*"))
+        out = next((p for p in entries if not inside(p, source)), None)
+        if out is not None:
+            raise DataError("a symbolic link that leads out of the source folder (copy the "
+                            "file in instead)", out)
+        files = [p for p in entries if p.is_file()]
         return content_key([[p.relative_to(source).as_posix(), sha256_file(p)] for p in files])
     return sha256_file(source)
 

@@ -6,6 +6,9 @@ so adding a class never reshuffles another):
 - :func:`stratified_split`: the stand-in's default split, stratified by action *and* style
   (default 80/20).  Within each (action, style) cell the clips are shuffled and the first
   ``round(n * test_fraction)`` go to test (half-up rounding).
+- :func:`subject_split`: whole subjects to test (a declared data set's ``[split] by =
+  "subject"``): subjects in a seeded order join the test side until it holds at least
+  ``round(n * test_fraction)`` clips, so no subject is on both sides.
 - :func:`marionette_split`: Neural Marionette Sec. 5.1.1 ("for every action class, we randomly
   select 20% to 100 samples to construct a testing set and use the rest data for training"),
   read as ``min(cap, round(0.2 * n_class))`` test clips per class, classes only (protocols.md §5).
@@ -59,6 +62,28 @@ def stratified_split(labels, styles=None, *, test_fraction: float = DEFAULT_TEST
             rng = numpy_rng(seed, "stratified_split", test_fraction, lab, sty)
             split[rng.permutation(idx)[:k]] = TEST
     return split
+
+
+def subject_split(subjects, *, test_fraction: float = DEFAULT_TEST_FRACTION,
+                  seed: int = DEFAULT_SPLIT_SEED) -> np.ndarray:
+    """A seeded subject-disjoint split: ``subjects`` (N,) names (or ids), one per clip; the
+    subjects, sorted then permuted by the seed, go to test one by one until it holds at least
+    ``round(N·f)`` clips; at least one subject stays in training (ValueError with fewer than
+    two subjects)."""
+    _check_fraction(test_fraction)
+    subjects = [str(x) for x in subjects]
+    names = sorted(set(subjects))
+    if len(names) < 2:
+        raise ValueError(f"a subject split needs at least two subjects, got {len(names)}")
+    order = [names[i] for i in numpy_rng(seed, "subject_split", test_fraction).permutation(len(names))]
+    target = _n_test(len(subjects), test_fraction)
+    count = {n: subjects.count(n) for n in names}
+    test: set[str] = set()
+    for n in order[:-1]:
+        if sum(count[t] for t in test) >= target:
+            break
+        test.add(n)
+    return np.array([TEST if x in test else TRAIN for x in subjects], dtype=np.int8)
 
 
 def marionette_split(labels, *, seed: int = DEFAULT_SPLIT_SEED, fraction: float = 0.2,

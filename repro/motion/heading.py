@@ -182,9 +182,14 @@ def body_frame(skeleton: Skeleton, *, left_hip: str | None = None, right_hip: st
 
     Joints are found by name (``UpperLeg_L``/``UpperLeg_R``/``Head`` for the stand-in,
     ``left_hip``/``right_hip``/``head`` for SMPL, ``LeftUpLeg``... for Mixamo/CMU); the
-    keyword arguments name them explicitly.  The pelvis is the hips' nearest common ancestor.
+    keyword arguments name them explicitly, else the skeleton's own ``hips`` / ``up_joint``
+    when it names them (a data-set spec's ``[skeleton]``).  The pelvis is the hips' nearest
+    common ancestor.
     """
-    return _body_frame_cached(skeleton, left_hip, right_hip, up_joint)
+    if skeleton.hips is not None:
+        left_hip = left_hip or skeleton.hips[0]
+        right_hip = right_hip or skeleton.hips[1]
+    return _body_frame_cached(skeleton, left_hip, right_hip, up_joint or skeleton.up_joint)
 
 
 def body_forward(skeleton: Skeleton, **names) -> np.ndarray:

@@ -22,11 +22,17 @@ class Skeleton:
 
     ``names``: joint names; ``parents``: parent index per joint, ``-1`` for the single root;
     ``offsets``: (J, 3) rest offsets from the parent, metres, in the parent's frame.
+    ``hips``, ``up_joint``: optional names of the (left, right) hip joints and of a joint above
+    the pelvis, for :func:`repro.motion.heading.body_frame` when the names are not ones it
+    knows (a data-set spec's ``[skeleton] hips``: CMU's ``lhipjoint`` / ``rhipjoint`` both start
+    at the root, so its hips are ``lfemur`` / ``rfemur``).  Stored and keyed only when set.
     """
 
     names: tuple[str, ...]
     parents: tuple[int, ...]
     offsets: np.ndarray = field(repr=False)
+    hips: tuple[str, str] | None = None
+    up_joint: str | None = None
 
     def __post_init__(self) -> None:
         names = tuple(str(n) for n in self.names)
@@ -47,6 +53,11 @@ class Skeleton:
         object.__setattr__(self, "names", names)
         object.__setattr__(self, "parents", parents)
         object.__setattr__(self, "offsets", offsets)
+        if self.hips is not None:
+            object.__setattr__(self, "hips", tuple(str(n) for n in self.hips))
+        for n in (*(self.hips or ()), *((self.up_joint,) if self.up_joint else ())):
+            if n not in names:
+                raise ValueError(f"body joint {n!r} is not a joint of the skeleton")
 
     @property
     def n_joints(self) -> int:
@@ -76,24 +87,39 @@ class Skeleton:
                 p = self.parents[p]
             parents.append(-1 if p == -1 else pos[p])
             offsets.append(off)
-        return Skeleton(tuple(keep), tuple(parents), np.array(offsets))
+        hips = self.hips if self.hips and set(self.hips) <= set(keep) else None
+        up = self.up_joint if self.up_joint in keep else None
+        return Skeleton(tuple(keep), tuple(parents), np.array(offsets), hips, up)
+
+    def _body(self) -> dict:
+        """The named body joints, only those set (absent from older files and keys)."""
+        out = {}
+        if self.hips is not None:
+            out["hips"] = list(self.hips)
+        if self.up_joint is not None:
+            out["up_joint"] = self.up_joint
+        return out
 
     def to_dict(self) -> dict:
         return {"names": list(self.names), "parents": list(self.parents),
-                "offsets": self.offsets.tolist()}
+                "offsets": self.offsets.tolist(), **self._body()}
 
     @classmethod
     def from_dict(cls, d: dict) -> "Skeleton":
-        return cls(tuple(d["names"]), tuple(d["parents"]), np.asarray(d["offsets"], dtype=np.float64))
+        hips = d.get("hips")
+        return cls(tuple(d["names"]), tuple(d["parents"]), np.asarray(d["offsets"], dtype=np.float64),
+                   None if hips is None else tuple(hips), d.get("up_joint"))
 
     def fingerprint(self) -> str:
-        """Content key of the tree (names, parents, offsets rounded to 1e-9 m)."""
+        """Content key of the tree (names, parents, offsets rounded to 1e-9 m; named body
+        joints when set)."""
         return content_key({"names": self.names, "parents": self.parents,
-                            "offsets": np.round(self.offsets, 9)})
+                            "offsets": np.round(self.offsets, 9), **self._body()})
 
     def __eq__(self, other: object) -> bool:
         return (isinstance(other, Skeleton) and self.names == other.names
-                and self.parents == other.parents and np.array_equal(self.offsets, other.offsets))
+                and self.parents == other.parents and np.array_equal(self.offsets, other.offsets)
+                and self.hips == other.hips and self.up_joint == other.up_joint)
 
     def __hash__(self) -> int:
         return hash((self.names, self.parents))

@@ -31,10 +31,11 @@ _TOML_LINE = re.compile(r"\(at line (\d+), column (\d+)\)")
 class SpecValidationError(SpecError):
     """Every problem of one spec file; ``problems`` holds one :class:`SpecError` each."""
 
-    def __init__(self, problems: list[SpecError], file: str | Path | None = None):
+    def __init__(self, problems: list[SpecError], file: str | Path | None = None, *,
+                 check_command: str = "repro spec check"):
         self.problems = problems
         first = problems[0]
-        more = f" (and {len(problems) - 1} more problem(s); run `repro spec check`)" \
+        more = f" (and {len(problems) - 1} more problem(s); run `{check_command}`)" \
             if len(problems) > 1 else ""
         super().__init__(first.problem + more, file, first.location)
 
