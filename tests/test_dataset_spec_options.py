@@ -228,3 +228,50 @@ def test_cli_refuses_a_link_out_of_a_folder_source(tmp_path, fresh_registry, _re
     assert len(out.stderr.strip().splitlines()) == 1
     assert "s1_9_a.amc" in out.stderr and "symbolic link" in out.stderr
     assert os.path.isdir(kept) and os.path.isfile(os.path.join(kept, "meta.json"))
+
+
+def test_expect_pins_the_facts_of_a_declared_data_set(tmp_path, fresh_registry, _repro_home):
+    from repro.data.dataset_prepare import prepare_dataset
+    from repro.errors import DataError
+
+    n = _cmu_archive(tmp_path)
+    spec = tmp_path / "cmuarch.toml"
+    spec.write_text(SPEC.format(skeleton='hips = ["lfemur", "rfemur"]')
+                    + "[expect]\nclips = 99\njoints = 4\n")
+    with pytest.raises(DataError, match=rf"{n} clips \(\[expect\] clips = 99\); \d+ joints"):
+        prepare_dataset(spec)
+
+
+def test_the_built_in_bandai2_is_declared_by_its_shipped_spec(tmp_path):
+    """bandai2's facts (names, fps, counts, words, split) live in repro/data/bundled/bandai2.toml,
+    valid under the same schema; a copy of it elsewhere may not take the built-in's name."""
+    import shutil
+
+    from repro.data.bandai import BANDAI2_CARD, BANDAI2_SPEC
+    from repro.data.dataset_spec import builtin_spec_path
+
+    path = builtin_spec_path("bandai2")
+    out = subprocess.run([sys.executable, "-m", "cli.main", "data", "check", str(path)],
+                         capture_output=True, text=True, cwd=repo_root())
+    assert out.returncode == 0, out.stderr
+    assert BANDAI2_CARD.clips == 2902 and BANDAI2_CARD.frames == 384931
+    assert BANDAI2_CARD.joints == 21 and BANDAI2_CARD.fps == 30.0
+    assert BANDAI2_CARD.class_names[0] == "walk" and len(BANDAI2_CARD.style_names) == 7
+    assert (BANDAI2_SPEC.split.test_fraction, BANDAI2_SPEC.split.seed) == (0.2, 0)
+    shutil.copy(path, tmp_path / "mine.toml")
+    out = subprocess.run([sys.executable, "-m", "cli.main", "data", "check",
+                          str(tmp_path / "mine.toml")], capture_output=True, text=True,
+                         cwd=repo_root())
+    assert out.returncode == 2 and "built-in" in out.stderr
+
+
+@pytest.mark.data
+def test_the_built_in_fingerprint_is_unchanged_by_its_declaration(bandai_archive):
+    """Moving bandai2's facts into its shipped spec kept every prepared copy and job key: the
+    fingerprint of the archive is the one prepared before the move (main 4b3830a)."""
+    from repro.data.bandai import BANDAI2_CARD, dataset_fingerprint, split_config
+    from repro.data.sources import source_fingerprint
+
+    assert dataset_fingerprint(source_fingerprint(bandai_archive), BANDAI2_CARD,
+                               split_config()) == \
+        "9cb30349044010c9fa7a668e34fe51846cc9758f875d87981d897c2954357e53"

@@ -85,7 +85,7 @@ class DatasetCard:
     fps: float
     class_names: tuple[str, ...]
     style_names: tuple[str, ...]
-    joints: int
+    joints: int | None
     license: str = "CC BY-NC 4.0"
     credit: str = "Bandai Namco Research Inc."
 
@@ -108,19 +108,39 @@ class DatasetCard:
             bad.append(f"{len(classes)} classes (card: {len(self.class_names)})")
         if self.clips is not None and len(styles) != len(self.style_names):
             bad.append(f"{len(styles)} styles (card: {len(self.style_names)})")
-        if joints != self.joints:
+        if self.joints is not None and joints != self.joints:
             bad.append(f"{joints} joints after dropping {DUMMY_ROOT} (card: {self.joints})")
         return bad
 
 
-BANDAI2_CARD = DatasetCard(
-    name="bandai2", clips=2902, frames=384931, fps=30.0,
-    class_names=("walk", "walk-turn-left", "walk-turn-right", "run", "wave-both-hands",
-                 "wave-left-hand", "wave-right-hand", "raise-up-both-hands", "raise-up-left-hand",
-                 "raise-up-right-hand"),
-    style_names=("active", "elderly", "exhausted", "feminine", "masculine", "normal", "youthful"),
-    joints=21,
-)
+def card_of_spec(spec) -> DatasetCard:
+    """The card a data-set spec declares (names, fps, ``[expect]`` counts, words): the
+    built-in stand-in's facts live in its shipped spec, ``repro/data/bundled/bandai2.toml``."""
+    exp = spec.expect
+    return DatasetCard(name=spec.name, clips=exp and exp.clips, frames=exp and exp.frames,
+                       fps=float(spec.frames.fps), class_names=tuple(spec.labels.classes),
+                       style_names=tuple(spec.labels.styles), joints=exp and exp.joints,
+                       license=spec.license, credit=spec.credit)
+
+
+def _builtin_spec():
+    """The shipped declaration of ``bandai2``, checked against this reader's fixed conventions
+    (centimetres, ``joint_Root`` dropped, y up, labels and split as declared)."""
+    from repro.data.dataset_spec import builtin_spec_path, load_dataset_spec
+
+    path = builtin_spec_path("bandai2")
+    spec = load_dataset_spec(path)
+    sk = spec.skeleton
+    if (sk.scale != CM_TO_M or sk.dummy_root != DUMMY_ROOT or sk.up_axis != "y"
+            or spec.source.format != "bvh" or spec.split.by != "clip" or not spec.labels.classes
+            or not spec.labels.styles or spec.frames.fps is None or spec.expect is None):
+        raise DataError("the built-in bandai2 reader needs cm, dummy_root 'joint_Root', y up, "
+                        "BVH, a clip split, classes, styles, fps and [expect]", path)
+    return spec
+
+
+BANDAI2_SPEC = _builtin_spec()
+BANDAI2_CARD = card_of_spec(BANDAI2_SPEC)
 
 
 # ------------------------------------------------------------------------ locations
@@ -130,6 +150,16 @@ def prepare_command(name: str = "bandai2") -> str:
 
     src = find_bandai_archive() or (shared_data_dir() / BANDAI_ARCHIVE_NAME)
     return f"repro data prepare {name} --source {src}"
+
+
+def split_config(seed: int | None = None, test_fraction: float | None = None) -> dict:
+    """The split a prepared stand-in records (and its fingerprint hashes): the shipped spec's
+    ``[split]`` unless overridden."""
+    declared = BANDAI2_SPEC.split
+    return {"method": "stratified(action, style)",
+            "seed": declared.seed if seed is None else int(seed),
+            "test_fraction": declared.test_fraction if test_fraction is None
+            else float(test_fraction)}
 
 
 def dataset_fingerprint(source_fp: str, card: DatasetCard, split: dict) -> str:
@@ -356,7 +386,7 @@ def prepare_bandai2(source: str | Path, *, card: DatasetCard = BANDAI2_CARD, wor
     """
     from filelock import FileLock
 
-    from repro.data.splits import DEFAULT_SPLIT_SEED, DEFAULT_TEST_FRACTION, stratified_split
+    from repro.data.splits import stratified_split
     from repro.motion.skeleton import Skeleton
 
     t_start = time.perf_counter()
@@ -364,9 +394,7 @@ def prepare_bandai2(source: str | Path, *, card: DatasetCard = BANDAI2_CARD, wor
     if not source.exists():
         raise MissingDataError(f"source not found; get {card.name}'s archive (see "
                                f"../shared/data/bandai-namco-2/SOURCE.md) and pass --source", source)
-    split_cfg = {"method": "stratified(action, style)",
-                 "seed": DEFAULT_SPLIT_SEED if split_seed is None else int(split_seed),
-                 "test_fraction": DEFAULT_TEST_FRACTION if test_fraction is None else float(test_fraction)}
+    split_cfg = split_config(split_seed, test_fraction)
     timings: dict = {}
     t0 = time.perf_counter()
     src_fp = source_fingerprint(source)

@@ -407,6 +407,13 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
         else:
             split = stratified_split(labels, styles, test_fraction=spec.split.test_fraction,
                                      seed=spec.split.seed)
+        exp = spec.expect
+        if exp is not None:
+            bad = [f"{got} {what} ([expect] {what} = {want})" for what, got, want in (
+                ("clips", len(stems), exp.clips), ("frames", int(lengths.sum()), exp.frames),
+                ("joints", skel.n_joints, exp.joints)) if want is not None and got != want]
+            if bad:
+                raise DataError("the data disagrees with the spec: " + "; ".join(bad), spec_path)
         bare = [classes[c] for c in range(len(classes)) if not ((labels == c) & (split == 0)).any()]
         if bare:
             raise DataError(f"class(es) {', '.join(map(repr, bare))} have no training clip after "

@@ -138,6 +138,15 @@ class SplitSpec(_Strict):
                                            "(needs subject labels)")
 
 
+class ExpectSpec(_Strict):
+    """Facts the prepared data must show (a truncated download, a missing folder or a wrong
+    skeleton then ends in one error naming every disagreement instead of a smaller data set)."""
+
+    clips: int | None = Field(None, gt=0)
+    frames: int | None = Field(None, gt=0)
+    joints: int | None = Field(None, gt=0, description="after a dummy root is dropped")
+
+
 class DatasetSpec(_Strict):
     schema_: Literal[1] = Field(alias="schema")
     name: str = Field(pattern=r"^[a-z0-9][a-z0-9._-]{0,63}$")
@@ -149,12 +158,15 @@ class DatasetSpec(_Strict):
     skeleton: SkeletonSpec = SkeletonSpec()
     frames: FramesSpec = FramesSpec()
     split: SplitSpec = SplitSpec()
+    expect: ExpectSpec | None = None
 
 
 #: fields added after the first data-set specs were prepared: left out of the key material
 #: while at their defaults, so a spec that does not use them keeps its fingerprint
 _LATER_DEFAULTS = {("skeleton", "hips"): None, ("skeleton", "up_joint"): None,
                    ("split", "by"): "clip"}
+#: the built-in stand-in's own declaration (:mod:`repro.data.bandai` reads its facts from it)
+BUILTIN_SPECS = {"bandai2": "bandai2.toml"}
 
 
 def key_material(spec: DatasetSpec) -> dict:
@@ -165,7 +177,16 @@ def key_material(spec: DatasetSpec) -> dict:
     for (section, field), default in _LATER_DEFAULTS.items():
         if d[section].get(field) == default:
             d[section].pop(field, None)
+    if d.get("expect") is None:
+        d.pop("expect", None)
     return d
+
+
+def builtin_spec_path(name: str) -> Path:
+    """The shipped spec file that declares the built-in data set ``name``."""
+    from repro.data.bundle import bundled_dir
+
+    return bundled_dir() / BUILTIN_SPECS[name]
 
 
 def json_schema() -> dict:
@@ -198,7 +219,8 @@ def load_dataset_spec(path: str | Path) -> DatasetSpec:
                         "the pattern, or a subject column/key in the labels file", path, "split")
     from repro.data.registry import builtin_names
 
-    if spec.name in builtin_names():
+    if spec.name in builtin_names() and not (
+            spec.name in BUILTIN_SPECS and path.resolve() == builtin_spec_path(spec.name).resolve()):
         raise SpecError(f"name {spec.name!r} is a built-in data set; choose another", path,
                         "name")
     return spec
