@@ -61,6 +61,8 @@ MAX_QUOTE_CHARS = 200
 #: ... and a whole message longer than this (many long words) too
 MAX_ERROR_CHARS = 2000
 _LONG_WORD = re.compile(r"\S{%d,}" % (MAX_QUOTE_CHARS + 1))
+#: a quoted value ('...' or "...", spaces allowed) longer than the cap
+_LONG_QUOTE = re.compile(r"'[^'\n]{%d,}'|\"[^\"\n]{%d,}\"" % ((MAX_QUOTE_CHARS - 1,) * 2))
 
 
 def _shorten(text: str, limit: int) -> str:
@@ -69,9 +71,12 @@ def _shorten(text: str, limit: int) -> str:
 
 
 def _one_line(msg: str) -> str:
-    """The message as printed: each quoted run clipped to ~:data:`MAX_QUOTE_CHARS`, the whole
-    to ~:data:`MAX_ERROR_CHARS`."""
-    msg = _LONG_WORD.sub(lambda m: _shorten(m.group(0), MAX_QUOTE_CHARS), msg)
+    """The message as printed: on one line (CR/LF escaped), each quoted value or long run of
+    non-blank characters clipped to ~:data:`MAX_QUOTE_CHARS`, the whole to
+    ~:data:`MAX_ERROR_CHARS`."""
+    msg = msg.replace("\r", "\\r").replace("\n", "\\n")  # one line, whatever was quoted
+    clip = lambda m: _shorten(m.group(0), MAX_QUOTE_CHARS)  # noqa: E731
+    msg = _LONG_WORD.sub(clip, _LONG_QUOTE.sub(clip, msg))
     return msg if len(msg) <= MAX_ERROR_CHARS else _shorten(msg, MAX_ERROR_CHARS)
 
 

@@ -373,6 +373,35 @@ def test_dataset_specs_raise_only_spec_errors(data):
         fail("dataset spec", f"load_dataset_spec returned {type(got).__name__}", data)
 
 
+_LABEL_SEEDS = (b"clip,action,style,subject\nc0,walk,happy,s1\nc1,run,,s2\n",
+                b'{"c0": "walk", "c1": {"action": "run", "style": "sad", "subject": "s2"}}')
+
+
+@FUZZ
+@given(seed=st.sampled_from(_LABEL_SEEDS), edits=st.lists(st.tuples(
+    st.integers(0, 80), st.integers(0, 8), st.binary(max_size=6)), max_size=6),
+    by_subject=st.booleans())
+def test_label_files_raise_only_data_errors(seed, edits, by_subject):
+    """A declared data set's labels side file (CSV or JSON): damaged copies of a valid one,
+    read and matched to the clips c0, c1 (repro.data.dataset_prepare._labels_for)."""
+    from repro.data.dataset_prepare import _labels_for
+    from repro.data.dataset_spec import DatasetSpec
+
+    data = bytearray(seed)
+    for at, cut, ins in edits:  # splice: replace data[at:at+cut] by ins
+        at = min(at, len(data))
+        data[at:at + cut] = ins
+    fmt = "csv" if seed.startswith(b"clip") else "json"
+    folder = _WORK / "labels"
+    folder.mkdir(exist_ok=True)
+    (folder / f"labels.{fmt}").write_bytes(bytes(data))
+    spec = DatasetSpec.model_validate({
+        "schema": 1, "name": "fz", "source": {"path": "x"},
+        "labels": {"from": fmt, "file": f"labels.{fmt}"},
+        "split": {"by": "subject" if by_subject else "clip"}})
+    call("label file", _labels_for, spec, folder, ["c0", "c1"], shown=bytes(data))
+
+
 _datasets = st.sampled_from((None, None, "bandai2", "bandai2-mini", "humanact12", "nope", ""))
 
 

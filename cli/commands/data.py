@@ -162,6 +162,8 @@ def _print_declared_card(card: dict) -> None:
     con.print(t)
     if card.get("subjects"):
         con.print(f"subjects: {card['subjects']}")
+    for w in card.get("warnings", []):
+        con.print(f"[yellow]warning[/yellow]: {w}")
     for key, what in (("skipped_files", "file(s) in the source matched no pattern"),
                       ("unused_label_rows", "label row(s) name no clip of the source")):
         d = card.get(key) or {}

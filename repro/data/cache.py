@@ -59,8 +59,18 @@ def dataset_dir(name: str = "bandai2") -> Path:
 
 
 def prepare_command(name: str = "bandai2") -> str:
-    """The command that prepares ``name``, for error messages:
+    """The command that prepares ``name``, for error messages: a declared data set's
+    ``repro data prepare SPEC`` (its registered spec file), else
     :func:`repro.data.bandai.prepare_command` (imported when needed: bandai imports this)."""
+    from repro.data.dataset_spec import spec_file_of
+    from repro.errors import ReproError
+
+    try:
+        spec = spec_file_of(name)
+    except ReproError:  # a broken registration must not hide the error being reported
+        spec = None
+    if spec is not None:
+        return f"repro data prepare {spec}"
     from repro.data.bandai import prepare_command as command
 
     return command(name)

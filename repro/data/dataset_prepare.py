@@ -15,7 +15,6 @@ names, sizes and contents), so editing either makes a new cache; nothing old is 
 from __future__ import annotations
 
 import csv
-import fnmatch
 import io
 import json
 import re
@@ -24,32 +23,26 @@ from pathlib import Path
 import numpy as np
 
 from repro.data.dataset_spec import (FPS_RTOL, POSITION_TOL_M, PREPARE_VERSION, DatasetSpec,
-                                     LabelSpec, SkeletonSpec, key_material, load_dataset_spec,
-                                     spec_key)
+                                     LabelSpec, SkeletonSpec, clip_pattern, key_material,
+                                     load_dataset_spec, role_of, spec_key)
 from repro.errors import DataError, MissingDataError
 
 
 # ------------------------------------------------------------------------ reading files
-def _matches(name: str, pattern: str) -> bool:
-    """``fnmatch`` of a path inside the source, case-insensitive on every system (``*.bvh``
-    takes ``TAKE01.BVH``)."""
-    return fnmatch.fnmatchcase(name.lower(), pattern.lower())
-
-
-def _iter_files(source: Path, pattern: str, skipped: list[str] | None = None):
-    """(label, bytes) of the files matching ``pattern`` (:func:`_matches` on the path inside
-    the source) in a folder or tar archive, read as the built-in stand-in's are
+def _iter_files(source: Path, spec: DatasetSpec, skipped: list[str] | None = None):
+    """(label, bytes) of the clip files (:func:`repro.data.dataset_spec.role_of`: the
+    ``include`` pattern, case-insensitive, over the path inside the source; never the ASF) in a
+    folder or tar archive, read as the built-in stand-in's are
     (:func:`repro.data.sources.iter_source`: one decompression pass, its size caps, no links
-    out of a folder).  ``skipped`` collects the paths of the other entries (folders included;
-    :func:`_skipped_files` leaves those out)."""
+    out of a folder).  ``skipped`` collects the paths of the entries not read (folders
+    included; :func:`_skipped_files` leaves those out)."""
     from repro.data.sources import iter_source
 
     def kind(name: str) -> str | None:
-        if _matches(name, pattern):
-            return "clip"
-        if skipped is not None:
+        role = role_of(spec, name)
+        if role is None and skipped is not None:
             skipped.append(name)
-        return None
+        return "clip" if role == "clip" else None
 
     for _, label, data in iter_source(source, kind_of=kind):
         yield label, data
@@ -58,31 +51,38 @@ def _iter_files(source: Path, pattern: str, skipped: list[str] | None = None):
 def _skipped_files(source: Path, skipped: list[str], read: list[str], known: set[str]) -> list[str]:
     """The files of the source that no pattern took: ``skipped`` less folders (a folder
     source's entries that are not files; an archive's names that lead to other entries) and
-    the ``known`` files the spec names (the ASF, the labels file)."""
+    the ``known`` files (the labels file and the spec itself, as paths inside the source,
+    lower case)."""
     if source.is_dir():
         files = [n for n in skipped if (source / n).is_file()]
     else:
         inner = {r[len(f"{source}:"):] for r in read}  # iter_source's "archive:member"
         parents = {q.rsplit("/", i)[0] for q in [*skipped, *inner] for i in range(1, q.count("/") + 1)}
         files = [n for n in skipped if n not in parents]
-    return sorted(n for n in files if n not in known)
+    return sorted(n for n in files if n.strip("/").lower() not in known)
 
 
-def _read_asf(source: Path, name: str):
-    """(bytes, where) of the ASF skeleton file ``name`` inside a source folder or archive (an
-    archive costs one more decompression pass, through the same caps)."""
-    from repro.data.sources import iter_source
+def _read_asf(source: Path, spec: DatasetSpec):
+    """(bytes, where) of the spec's ASF skeleton file inside a source folder or archive, its
+    path matched case-insensitively in both (an archive costs one more decompression pass,
+    through the same caps; a folder's file must not be a link out of it)."""
+    from repro.data.sources import inside, iter_source
 
     if source.is_dir():
-        p = source / name
-        if not p.is_file():
-            raise MissingDataError("the spec's ASF skeleton file is not in the source folder", p)
-        return p.read_bytes(), p
-    want = name.strip("/").lower()
-    for _, label, data in iter_source(source, kind_of=lambda n: "asf" if n.lower() == want
-                                      else None):
+        found = [q for q in sorted(source.rglob("*"))
+                 if role_of(spec, q.relative_to(source).as_posix()) == "asf"]
+        if not found or not found[0].is_file():
+            raise MissingDataError("the spec's ASF skeleton file is not in the source folder",
+                                   source / spec.source.asf)
+        if not inside(found[0], source):
+            raise DataError("a symbolic link that leads out of the source folder (copy the "
+                            "file in instead)", found[0])
+        return found[0].read_bytes(), found[0]
+    for _, label, data in iter_source(source, kind_of=lambda n: role_of(spec, n) == "asf"
+                                      and "asf" or None):
         return data, label
-    raise MissingDataError(f"the spec's ASF skeleton file {name!r} is not in the archive", source)
+    raise MissingDataError(f"the spec's ASF skeleton file {spec.source.asf!r} is not in the "
+                           "archive", source)
 
 
 def _convert_bvh(label: str, data: bytes, sk: SkeletonSpec) -> dict:
@@ -135,12 +135,14 @@ def _convert_amc(label: str, data: bytes, asf, sk: SkeletonSpec, fps: float | No
             "fps": float(rate), "label": label}
 
 
-def _name(v, what: str, clip: str, where) -> str | None:
-    """A label value as a non-empty name (``None`` stays None: no style)."""
-    if v is None:
+def _name(v, what: str, clip: str, where, *, required: bool = False) -> str | None:
+    """A label value as a non-empty name without control characters (``None`` stays None: no
+    style or subject, unless ``required``)."""
+    if v is None and not required:
         return None
-    if not isinstance(v, str) or not v.strip():
-        raise DataError(f"clip {clip!r}: {what} must be a non-empty name, got {v!r:.60}", where)
+    if not isinstance(v, str) or not v.strip() or any(ord(ch) < 32 for ch in v):
+        raise DataError(f"clip {clip!r:.80}: {what} must be a non-empty name (no control "
+                        f"characters), got {v!r:.60}", where)
     return v.strip()
 
 
@@ -155,26 +157,29 @@ def _side_table(lab: LabelSpec, side: Path) -> dict[str, tuple]:
     table: dict[str, tuple] = {}
 
     def put(clip, action, style, subject, where: str) -> None:
-        clip = _name(clip, "the clip name", str(clip), side)
+        clip = _name(clip, f"the clip name ({where})", str(clip), side, required=True)
         if clip in table:
             raise DataError(f"clip {clip!r} is labelled twice ({where})", side)
-        table[clip] = (_name(action, "action", clip, side), _name(style, "style", clip, side),
-                       _name(subject, "subject", clip, side))
+        table[clip] = (_name(action, "action", clip, side, required=True),
+                       _name(style, "style", clip, side), _name(subject, "subject", clip, side))
 
     if lab.from_ == "csv":
         reader = csv.DictReader(io.StringIO(text))
-        reader.fieldnames = [f.strip() for f in reader.fieldnames or []]
-        if not {"clip", "action"} <= set(reader.fieldnames):
-            raise DataError("a labels CSV needs a header row with columns clip, action[, style]"
-                            f"[, subject] (found {reader.fieldnames})", side)
-        for n, r in enumerate(reader, start=2):
-            put(r.get("clip"), r.get("action"), r.get("style") or None, r.get("subject") or None,
-                f"line {n}")
+        try:
+            reader.fieldnames = [f.strip() for f in reader.fieldnames or []]
+            if not {"clip", "action"} <= set(reader.fieldnames):
+                raise DataError("a labels CSV needs a header row with columns clip, action"
+                                f"[, style][, subject] (found {reader.fieldnames!r:.200})", side)
+            for n, r in enumerate(reader, start=2):
+                put(r.get("clip"), r.get("action"), r.get("style") or None,
+                    r.get("subject") or None, f"line {n}")
+        except csv.Error as e:  # e.g. a field over the csv module's size limit
+            raise DataError(f"not a readable CSV at line {reader.line_num} ({e})", side) from None
         return table
     try:
         raw = json.loads(text)
-    except ValueError as e:
-        raise DataError(f"not JSON ({e})", side) from None
+    except (ValueError, RecursionError) as e:
+        raise DataError(f"not JSON ({type(e).__name__}: {str(e)[:80]})", side) from None
     if not isinstance(raw, dict):
         raise DataError("labels JSON must map clip -> action or {action, style, subject}", side)
     for k, v in raw.items():
@@ -256,8 +261,79 @@ def _up_to_y(c: dict) -> None:
     c["root"] = c["root"] @ R.T
 
 
+def _check_expect(spec: DatasetSpec, spec_path: Path, clips: int, frames: int, joints: int):
+    """The spec's ``[expect]`` against the data (also on reusing a prepared copy: the section
+    is a check, not part of the key)."""
+    exp = spec.expect
+    if exp is None:
+        return
+    bad = [f"{got} {what} ([expect] {what} = {want})" for what, got, want in (
+        ("clips", clips, exp.clips), ("frames", frames, exp.frames), ("joints", joints, exp.joints))
+        if want is not None and got != want]
+    if bad:
+        raise DataError("the data disagrees with the spec: " + "; ".join(bad), spec_path)
+
+
+def _body(skel, spec_path: Path):
+    """The body frame every protocol takes the heading from (the hips by name, or the spec's
+    ``[skeleton] hips`` / ``up_joint``); an up joint in a leg is refused."""
+    from repro.motion.heading import _ancestors, body_frame
+
+    try:
+        body = body_frame(skel)
+    except ValueError as e:
+        raise DataError(f"{e} (the harness finds the hips by joint names such as "
+                        "LeftUpLeg / UpperLeg_L / l_hip; or name them: [skeleton] hips = "
+                        "[left, right], up_joint = ...)", spec_path) from None
+    L, R, U = (skel.index(n) for n in body.joints)
+    if {L, R} & set(_ancestors(skel, U)):
+        raise DataError(f"the up joint {body.joints[2]!r} is in a leg (below a hip); name a "
+                        "joint above the pelvis: [skeleton] up_joint", spec_path)
+    return body
+
+
+#: the body's mean up direction (pelvis → up joint) must be this close to +y (cos ~ 60°)
+UP_MIN_COS = 0.5
+#: a mean speed (m/s) along the body's backward direction that is flagged on the card
+BACKWARD_FLAG_MPS = 0.1
+
+
+def _posture_checks(skel, body, joints: list, fps: float, spec_path: Path) -> list[str]:
+    """Checks of the conventions on the motion itself: the body must stand up along +y on
+    average (else ``up_axis`` / ``up_joint`` is wrong: refused); a data set whose roots move
+    backwards relative to the hips' forward on average gets a card warning (swapped ``hips``?).
+    Returns the warnings."""
+    pelvis, U = body.pelvis, skel.index(body.joints[2])
+    L, R = skel.index(body.joints[0]), skel.index(body.joints[1])
+    allj = np.concatenate(joints).astype(np.float64)
+    up = (allj[:, U] - allj[:, pelvis]).mean(0)
+    n = np.linalg.norm(up)
+    if n < 1e-9 or up[1] / n < UP_MIN_COS:
+        raise DataError(f"the body's up direction ({body.joints[2]} above "
+                        f"{skel.names[pelvis]}) points along {np.round(up / max(n, 1e-9), 2).tolist()} "
+                        "on average, not +y: check [skeleton] up_axis (and up_joint)", spec_path)
+    speeds = []
+    for j in joints:
+        if len(j) < 2:
+            continue
+        fwd = np.cross(j[:-1, L] - j[:-1, R], [0.0, 1.0, 0.0])  # left × up, on the floor
+        fwd /= np.maximum(np.linalg.norm(fwd, axis=1, keepdims=True), 1e-9)
+        speeds.append(((j[1:, pelvis] - j[:-1, pelvis]) * fwd).sum(1) * fps)
+    mean = float(np.concatenate(speeds).mean()) if speeds else 0.0
+    if mean < -BACKWARD_FLAG_MPS:
+        return [f"the pelvis moves {-mean:.2f} m/s backwards on average relative to the body's "
+                "forward (left hip × up): are [skeleton] hips swapped?"]
+    return []
+
+
+def _test_warnings(classes, labels, split) -> list[str]:
+    """A class with no test clip cannot be scored on the test split: said on the card."""
+    none = [c for i, c in enumerate(classes) if not ((labels == i) & (split == 1)).any()]
+    return [f"class(es) {', '.join(none)} have no test clip"] if none else []
+
+
 def _card(spec: DatasetSpec, classes, styles, labels, lengths, fps, subjects,
-          skipped: list[str], unused_rows: list[str]) -> dict:
+          skipped: list[str], unused_rows: list[str], warnings: list[str]) -> dict:
     """The generated card: counts, per-class clips / frames / durations, subjects, and what the
     source held that was not read (files no pattern took, label rows naming no clip)."""
     per_class = {}
@@ -272,7 +348,7 @@ def _card(spec: DatasetSpec, classes, styles, labels, lengths, fps, subjects,
             "subjects": len(named), "per_class": per_class,
             "skipped_files": {"count": len(skipped), "first": skipped[:10]},
             "unused_label_rows": {"count": len(unused_rows), "first": unused_rows[:10]},
-            "license": spec.license, "credit": spec.credit, "description": spec.description}
+            "warnings": list(warnings), "license": spec.license, "credit": spec.credit, "description": spec.description}
 
 
 def prepare_dataset(spec_path: str | Path, *, force: bool = False):
@@ -299,13 +375,13 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
     if not source.exists():
         raise MissingDataError("the spec's source folder or archive is not there", source)
     fmt = spec.source.format
-    pattern = spec.source.include or ("*.bvh" if fmt == "bvh" else "*.amc")
+    pattern = clip_pattern(spec)
     digest = hashlib.sha256()
     asf = None
     if fmt == "asf_amc":
         from repro.data import asf_amc
 
-        asf_bytes, asf_where = _read_asf(source, spec.source.asf)
+        asf_bytes, asf_where = _read_asf(source, spec)
         digest.update(b"asf\0" + hashlib.sha256(asf_bytes).digest())
         asf = asf_amc.parse_asf(asf_bytes, asf_where)
     from repro.data.sources import source_fingerprint
@@ -316,7 +392,7 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
             digest.update(b"labels\0" + hashlib.sha256(side.read_bytes()).digest())
 
     # the source is named by its bytes (as the built-in stand-in's), the spec by its content
-    src_fp = source_fingerprint(source)
+    src_fp = source_fingerprint(source, select=lambda n: role_of(spec, n))
     pointer = {"fingerprint": None, "source": str(spec_path),
                "spec_file": str(spec_path.resolve()), "spec_key": spec_key(spec, spec_path)}
     fp = content_key({"kind": "dataset_spec", "version": PREPARE_VERSION,
@@ -328,17 +404,21 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
     with FileLock(str(root / ".lock")):
         meta = None if force else valid_cache(root / fp)
         if meta is not None:
+            _check_expect(spec, spec_path, len(meta["clip_names"]), int(meta["stats"]["frames"]),
+                          len(meta["skeleton"]["names"]))
             write_json_atomic(root / POINTER, pointer)
             return PrepareResult(root / fp, fp, True, time.perf_counter() - t0,
                                  len(meta["clip_names"]), int(meta["stats"]["frames"]))
         sk = spec.skeleton
         clips, skipped = [], []
-        for label, data in _iter_files(source, pattern, skipped):  # converted as they stream
+        for label, data in _iter_files(source, spec, skipped):  # converted as they stream
             clips.append(_convert_bvh(label, data, sk) if fmt == "bvh" else
                          _convert_amc(label, data, asf, sk, spec.frames.fps))
         if not clips:
             raise DataError(f"no file matches {pattern!r} (case-insensitive)", source)
-        known = {n for n in (spec.source.asf, spec.labels.file) if n}
+        known = {p.relative_to(source.resolve()).as_posix().lower()
+                 for p in (here / (spec.labels.file or ""), spec_path.resolve())
+                 if source.is_dir() and p.is_file() and p.is_relative_to(source.resolve())}
         skipped = _skipped_files(source, skipped, [c["label"] for c in clips], known)
         first = clips[0]
         for c in clips[1:]:
@@ -381,14 +461,7 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
                 raise DataError(f"two clips share the name {st!r}: {seen[st]} and "
                                 f"{clips[i]['label']} (clip names must be unique)", source)
             seen[st] = clips[i]["label"]
-        from repro.motion.heading import body_frame
-
-        try:  # every protocol finds the body's heading from the hips, by name
-            body_frame(skel)
-        except ValueError as e:
-            raise DataError(f"{e} (the harness finds the hips by joint names such as "
-                            "LeftUpLeg / UpperLeg_L / l_hip; or name them: [skeleton] hips = "
-                            "[left, right], up_joint = ...)", spec_path) from None
+        body = _body(skel, spec_path)
         labels, styles, classes, style_names, subjects, unused_rows = _labels_for(
             spec, here, stems)
         quats = [clips[i]["quats"].astype(np.float32) for i in order]
@@ -407,13 +480,8 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
         else:
             split = stratified_split(labels, styles, test_fraction=spec.split.test_fraction,
                                      seed=spec.split.seed)
-        exp = spec.expect
-        if exp is not None:
-            bad = [f"{got} {what} ([expect] {what} = {want})" for what, got, want in (
-                ("clips", len(stems), exp.clips), ("frames", int(lengths.sum()), exp.frames),
-                ("joints", skel.n_joints, exp.joints)) if want is not None and got != want]
-            if bad:
-                raise DataError("the data disagrees with the spec: " + "; ".join(bad), spec_path)
+        _check_expect(spec, spec_path, len(stems), int(lengths.sum()), skel.n_joints)
+        checks = _posture_checks(skel, body, joints, fps, spec_path)
         bare = [classes[c] for c in range(len(classes)) if not ((labels == c) & (split == 0)).any()]
         if bare:
             raise DataError(f"class(es) {', '.join(map(repr, bare))} have no training clip after "
@@ -434,7 +502,7 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
                 "split": {"method": "subjects whole to test" if spec.split.by == "subject"
                           else "stratified(action, style)", **spec.split.model_dump()},
                 "card": _card(spec, classes, style_names, labels, lengths, fps, subjects,
-                              skipped, unused_rows),
+                              skipped, unused_rows, checks + _test_warnings(classes, labels, split)),
                 "stats": {"clips": len(stems), "frames": int(lengths.sum())},
                 "repro_version": __version__, "dataset_spec_version": PREPARE_VERSION}
         write_cache(root, fp, arrays, meta)

@@ -18,13 +18,15 @@ the skeleton's conventions, the frame rate and the split::
     [labels]
     from = "filename"                   # "filename" (regex), "csv" or "json" (a side file)
     pattern = '^(?P<subject>s\\d+)_(?P<action>[a-z-]+)_\\d+$'   # over the file stem
-    # file = "labels.csv"               # csv: columns clip, action[, style]; json: {clip: ...}
+    # file = "labels.csv"               # csv: columns clip, action[, style][, subject]
     # classes = ["walk", "jump"]        # the tag order (default: sorted names found)
 
     [skeleton]
     up_axis = "y"                       # "y" or "z" (z-up data is turned to y-up)
     units = "cm"                        # "m", "cm", "mm", "inch", or length_scale = 0.01
     # dummy_root = "reference"          # an all-zero root joint above the hips, dropped
+    # hips = ["lfemur", "rfemur"]       # the heading's hip joints when not found by name
+    # up_joint = "head"                 # a joint above the pelvis, likewise
 
     [frames]
     # fps = 30.0                        # expected rate (checked); default: the files'
@@ -33,6 +35,12 @@ the skeleton's conventions, the frame rate and the split::
     [split]
     test_fraction = 0.2                 # stratified by action (and style when labelled)
     seed = 0
+    # by = "subject"                    # whole subjects to test (needs subject labels)
+
+    [expect]                            # optional facts checked at prepare (and on reuse)
+    # clips = 120
+    # frames = 36000
+    # joints = 31
 
 Preparing (reading, converting, labelling, splitting) lives in :mod:`repro.data.dataset_prepare`.
 
@@ -76,7 +84,18 @@ class SourceSpec(_Strict):
                                 "inside the source, case-insensitive ('*' crosses folders; "
                                 "default *.bvh / *.amc)")
     asf: str | None = Field(None, description="asf_amc: the ASF skeleton file, its path inside "
-                            "the source folder or archive")
+                            "the source folder or archive (case-insensitive)")
+
+    @field_validator("asf")
+    @classmethod
+    def _inside(cls, v):
+        if v is None:
+            return v
+        parts = v.replace("\\", "/").split("/")
+        if v.startswith(("/", "\\")) or ".." in parts or ":" in parts[0]:
+            raise ValueError("the ASF file is named by its path inside the source (no '..', "
+                             "not absolute)")
+        return "/".join(q for q in parts if q not in ("", "."))
 
 
 class LabelSpec(_Strict):
@@ -177,9 +196,29 @@ def key_material(spec: DatasetSpec) -> dict:
     for (section, field), default in _LATER_DEFAULTS.items():
         if d[section].get(field) == default:
             d[section].pop(field, None)
-    if d.get("expect") is None:
-        d.pop("expect", None)
+    d.pop("expect", None)  # a check on the prepared data, not part of what it is
     return d
+
+
+def clip_pattern(spec: DatasetSpec) -> str:
+    """The spec's ``include`` pattern, or the format's default."""
+    return spec.source.include or ("*.bvh" if spec.source.format == "bvh" else "*.amc")
+
+
+def matches(name: str, pattern: str) -> bool:
+    """``fnmatch`` of a path inside the source, case-insensitive on every system (``*.bvh``
+    takes ``TAKE01.BVH``)."""
+    import fnmatch
+
+    return fnmatch.fnmatchcase(name.lower(), pattern.lower())
+
+
+def role_of(spec: DatasetSpec, name: str) -> str | None:
+    """What the spec reads a file of the source as (its path inside the source): "asf",
+    "clip", or None (not read)."""
+    if spec.source.asf and name.strip("/").lower() == spec.source.asf.lower():
+        return "asf"
+    return "clip" if matches(name, clip_pattern(spec)) else None
 
 
 def builtin_spec_path(name: str) -> Path:
@@ -308,11 +347,11 @@ def spec_key(spec: DatasetSpec, spec_path: Path) -> str:
     here = Path(spec_path).resolve().parent
     side = here / spec.labels.file if spec.labels.file else None
     src = here / spec.source.path
-    try:
+    try:  # a folder: only the files the spec reads (another file beside them changes nothing)
         st = src.stat()
         src_state = [st.st_size, st.st_mtime_ns] if src.is_file() else sorted(
-            [q.relative_to(src).as_posix(), q.stat().st_size, q.stat().st_mtime_ns]
-            for q in src.rglob("*") if q.is_file())
+            [r, q.stat().st_size, q.stat().st_mtime_ns] for q in src.rglob("*")
+            if q.is_file() and role_of(spec, r := q.relative_to(src).as_posix()))
     except OSError:
         src_state = None
     return content_key({

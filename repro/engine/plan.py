@@ -49,6 +49,23 @@ def force_matcher(force: bool | str | Iterable[str] | None):
     return lambda job: job.kind in names or (job.label and job.label in names)
 
 
+def check_force(force, jobs: Iterable[Job]) -> None:
+    """A ``--force`` name that names no kind or label of the graph reaching ``jobs`` is a
+    typo (``--force trian`` would force nothing and retrain nothing): ConfigError listing the
+    graph's kinds.  Called before anything is computed."""
+    if force is None or isinstance(force, bool):
+        return
+    from repro.errors import ConfigError
+
+    order = topo_order(list(jobs))
+    names = {force} if isinstance(force, str) else set(force)
+    kinds = {j.kind for j in order}
+    unknown = sorted(names - kinds - {j.label for j in order if j.label})
+    if unknown:
+        raise ConfigError(f"--force {', '.join(unknown)}: no job of this run has that kind or "
+                          f"label (kinds: {', '.join(sorted(kinds))})")
+
+
 @dataclass
 class Decision:
     action: str
