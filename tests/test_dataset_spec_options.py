@@ -275,3 +275,149 @@ def test_the_built_in_fingerprint_is_unchanged_by_its_declaration(bandai_archive
     assert dataset_fingerprint(source_fingerprint(bandai_archive), BANDAI2_CARD,
                                split_config()) == \
         "9cb30349044010c9fa7a668e34fe51846cc9758f875d87981d897c2954357e53"
+
+
+def _amc_folder(tmp_path, name="src", n=4):
+    from test_asf_amc import make_motion, write_amc, write_asf
+
+    order = "TX TY TZ RX RY RZ"
+    src = tmp_path / name
+    src.mkdir()
+    (src / "Body.ASF").write_text(write_asf(root_order=order))
+    for k in range(n):
+        (src / f"s{k % 2}_{k}_{'ab'[k * 2 // n]}.amc").write_text(
+            write_amc(make_motion(order, seed=k), order))
+    return src
+
+
+FOLDER_SPEC = ('schema = 1\nname = "fold"\n[source]\npath = "{path}"\nformat = "asf_amc"\n'
+               'asf = "{asf}"\n[labels]\npattern = \'_(?P<action>[ab])$\'\n'
+               '[skeleton]\nhips = ["lfemur", "rfemur"]\n{extra}[split]\ntest_fraction = 0.5\n')
+
+
+def test_the_key_follows_only_the_files_read(tmp_path, fresh_registry, _repro_home):
+    """A folder's other files, the spec kept inside its source, its words and [expect] leave
+    the fingerprint alone; the ASF (matched case-insensitively) and the clips do not."""
+    from repro.data.dataset_prepare import prepare_dataset
+    from repro.data.dataset_spec import register_spec_path
+    from repro.data.registry import get_entry
+
+    src = _amc_folder(tmp_path)
+    spec = src / "fold.toml"  # the spec inside its own source folder
+    spec.write_text(FOLDER_SPEC.format(path=".", asf="body.asf", extra=""))
+    a = prepare_dataset(spec)
+    card = json.loads((a.path / "meta.json").read_text())["card"]
+    assert card["skipped_files"]["count"] == 0  # the spec itself is no skipped file
+    (src / "notes.txt").write_text("x")
+    spec.write_text('description = "words"\n' + FOLDER_SPEC.format(
+        path=".", asf="body.asf", extra="") + "[expect]\nclips = 4\n")
+    b = prepare_dataset(spec)
+    assert b.fingerprint == a.fingerprint and b.reused
+    name = register_spec_path(str(spec))
+    assert get_entry(name).status().prepared
+    (src / "Body.ASF").write_text((src / "Body.ASF").read_text().replace("length 1", "length 2"))
+    assert prepare_dataset(spec).fingerprint != a.fingerprint
+
+
+def test_bad_paths_and_postures_are_refused(tmp_path, fresh_registry, _repro_home):
+    from repro.data.dataset_prepare import prepare_dataset
+    from repro.data.dataset_spec import load_dataset_spec
+    from repro.errors import DataError, SpecError
+
+    _amc_folder(tmp_path)
+    spec = tmp_path / "fold.toml"
+    for asf in ("../src/Body.ASF", "/etc/passwd"):
+        spec.write_text(FOLDER_SPEC.format(path="src", asf=asf, extra=""))
+        with pytest.raises(SpecError, match="inside the source"):
+            load_dataset_spec(spec)
+    spec.write_text(FOLDER_SPEC.format(path="src", asf="body.asf", extra='up_joint = "ltibia"\n'))
+    with pytest.raises(DataError, match="in a leg"):
+        prepare_dataset(spec)
+    spec.write_text(FOLDER_SPEC.format(path="src", asf="body.asf", extra='up_axis = "z"\n'))
+    with pytest.raises(DataError, match="not \\+y"):  # a y-up body turned as if z-up lies down
+        prepare_dataset(spec)
+    spec.write_text(FOLDER_SPEC.format(path="src", asf="body.asf", extra="")
+                    + "[expect]\nclips = 4\n")
+    prepare_dataset(spec)
+    spec.write_text(FOLDER_SPEC.format(path="src", asf="body.asf", extra="")
+                    + "[expect]\nclips = 5\n")
+    with pytest.raises(DataError, match=r"4 clips \(\[expect\] clips = 5\)"):
+        prepare_dataset(spec)  # checked on the reused copy too
+
+
+@pytest.mark.parametrize("fmt,text,problem", [
+    ("json", '{"s0_0_a": null}', "action must be a non-empty name"),
+    ("json", '{"s0_0_a": {"style": "x"}}', "action must be a non-empty name"),
+    ("json", '{"a":' * 100_000 + "1" + "}" * 100_000, "not JSON"),
+    ("json", '{"s0_0_a": "st\\u0000omp"}', "control characters"),
+    ("csv", "clip,action\ns0_0_a\n", "action must be a non-empty name"),
+    ("csv", "clip,action\n,a\n", "the clip name"),
+    ("csv", "clip,action\ns0_0_a," + "x" * 200_000 + "\n", "not a readable CSV"),
+])
+def test_broken_label_files_are_one_error(tmp_path, fresh_registry, _repro_home, fmt, text,
+                                          problem):
+    from repro.data.dataset_prepare import prepare_dataset
+    from repro.errors import DataError
+
+    _amc_folder(tmp_path)
+    (tmp_path / f"labels.{fmt}").write_text(text)
+    spec = tmp_path / "fold.toml"
+    spec.write_text(FOLDER_SPEC.format(path="src", asf="body.asf", extra="").replace(
+        "pattern = '_(?P<action>[ab])$'", f'from = "{fmt}"\nfile = "labels.{fmt}"'))
+    with pytest.raises(DataError, match=problem) as e:
+        prepare_dataset(spec)
+    assert len(str(e.value)) < 600
+
+
+def test_force_with_an_unknown_kind_is_refused(tmp_path):
+    out = subprocess.run([sys.executable, "-m", "cli.main", "run", "marionette/table1",
+                          "--force", "trian"], capture_output=True, text=True, cwd=repo_root(),
+                         env={**os.environ, "REPRO_HOME": str(tmp_path)})
+    assert out.returncode == 2 and "Traceback" not in out.stderr
+    assert "--force trian: no job of this run" in out.stderr and "train" in out.stderr
+
+
+def test_a_damaged_declared_copy_names_its_own_prepare_command(tmp_path, fresh_registry,
+                                                               _repro_home):
+    from repro.data.dataset_prepare import prepare_dataset
+    from repro.data.dataset_spec import register_spec_path
+    from repro.data.registry import load_clipset
+    from repro.errors import DataError
+
+    _amc_folder(tmp_path)
+    spec = tmp_path / "fold.toml"
+    spec.write_text(FOLDER_SPEC.format(path="src", asf="body.asf", extra=""))
+    res = prepare_dataset(spec)
+    name = register_spec_path(str(spec))
+    (res.path / "joints.npy").write_bytes(b"\x93NUMPY broken")
+    with pytest.raises(DataError, match=r"run: repro data prepare \S*fold.toml --force"):
+        load_clipset(name)
+
+
+def test_the_lab_example_is_the_bundled_motion_in_another_skeleton(tmp_path, fresh_registry,
+                                                                   _repro_home):
+    """docs/examples/lab_example.py (the README's walk-through) re-expresses bandai2-mini: once
+    prepared by its spec alone, its joints are the mini's (toes aside), in metres, y up."""
+    import importlib.util
+
+    from repro.data.dataset_prepare import prepare_dataset
+    from repro.data.dataset_spec import register_spec_path
+    from repro.data.registry import load_clipset
+
+    path = repo_root() / "docs" / "examples" / "lab_example.py"
+    mod_spec = importlib.util.spec_from_file_location("lab_example", path)
+    lab = importlib.util.module_from_spec(mod_spec)
+    mod_spec.loader.exec_module(lab)
+    spec = lab.write_lab_example(tmp_path / "lab")
+    prepare_dataset(spec)
+    got = load_clipset(register_spec_path(str(spec)))
+    mini = load_clipset("bandai2-mini")
+    assert got.skeleton.names == tuple(lab.RENAME.values()) and len(got) == len(mini)
+    assert got.skeleton.hips == ("femur.L", "femur.R")
+    idx = [mini.skeleton.names.index(n) for n in lab.RENAME]
+    for i in (0, 57, 279):
+        j = got.clip_names.index(f"take_{i + 1:04d}")
+        assert got.label_names[got.labels[j]] == mini.label_names[mini.labels[i]]
+        a = np.asarray(got.joints[got.starts[j]:got.starts[j] + got.lengths[j]])
+        b = np.asarray(mini.joints[mini.starts[i]:mini.starts[i] + mini.lengths[i]])[:, idx]
+        assert np.abs(a - b).max() < 1e-4  # metres: 6-decimal mm text, float32 storage

@@ -47,6 +47,11 @@ MODES = {
     "repro run marionette/table1 --dataset docs/examples/bandai2-declared.toml": "slow",
     "repro eval classifier --dataset bandai2 --scale medium": "slow",
     "repro eval real --dataset bandai2 --json": "slow",
+    # the lab example: one sequence (each step needs the one before), tests below
+    ".venv/bin/python docs/examples/lab_example.py build/lab": "lab",
+    "repro data prepare build/lab/lab.toml": "lab",
+    "repro eval real --dataset build/lab/lab.toml --json": "lab-slow",
+    "repro run marionette/table1 --scale quick --dataset build/lab/lab.toml": "lab-slow",
 }
 
 
@@ -58,7 +63,7 @@ def readme_commands() -> list[str]:
             line = line.split("  #", 1)[0].strip()
             if not line:
                 continue
-            cmds.append(line.replace(".venv/bin/repro", "repro"))
+            cmds.append(line.replace(".venv/bin/repro", "repro"))  # .venv/bin/python stays
     return cmds
 
 
@@ -71,6 +76,8 @@ def _run(cmd: str, home) -> subprocess.CompletedProcess:
     env = {**os.environ, "REPRO_HOME": str(home)}
     if cmd.startswith("make "):
         argv = ["make", "-s", *cmd.split()[1:], f"REPRO={sys.executable} -m cli.main"]
+    elif cmd.startswith(".venv/bin/python "):
+        argv = [sys.executable, *shlex.split(cmd)[1:]]
     else:
         argv = [sys.executable, "-m", "cli.main", *shlex.split(cmd)[1:]]
     return subprocess.run(argv, capture_output=True, text=True, env=env, cwd=repo_root(),
@@ -108,3 +115,23 @@ def test_slow_readme_command_runs(cmd, _repro_home):
         assert prep.returncode == 0, prep.stderr[-3000:]
     out = _run(cmd, _repro_home)
     assert out.returncode == 0, out.stderr[-3000:]
+
+
+def _lab_sequence(modes: tuple[str, ...], home, tmp_path):
+    """The README's lab example in order, writing into ``tmp_path`` instead of build/lab."""
+    for cmd in [c for c in readme_commands() if MODES.get(c) in modes]:
+        out = _run(cmd.replace("build/lab", str(tmp_path / "lab")), home)
+        assert out.returncode == 0, (cmd, out.stderr[-3000:])
+        assert "Traceback" not in out.stderr
+    return out
+
+
+def test_lab_example_prepares(_repro_home, tmp_path):
+    out = _lab_sequence(("lab",), _repro_home, tmp_path)
+    assert "lab-example: prepared: 280 clips" in out.stdout and "per class" in out.stdout
+
+
+@pytest.mark.slow
+def test_lab_example_end_to_end(_repro_home, tmp_path):
+    out = _lab_sequence(("lab", "lab-slow"), _repro_home, tmp_path)
+    assert "STAND-IN" in out.stdout and "lab-example" in out.stdout
