@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+import repro.data.bvh as bvh_mod
 from repro.data.bvh import (MAX_DEPTH, Bvh, bvh_from_motion, format_bvh, parse_bvh, read_bvh,
                             write_bvh)
 from repro.errors import DataError
@@ -326,3 +327,55 @@ def test_bvh_validates_its_arrays():
     with pytest.raises(ValueError):
         Bvh(("a",), (-1,), np.zeros((1, 3)), (("Zrotation",),), (), np.zeros((0, 3)), 0.1,
             np.zeros((2, 2)))
+
+
+# ----------------------------------------------------------------------------- hierarchy memo
+def test_a_seen_hierarchy_is_reused_without_sharing_arrays():
+    """A HIERARCHY block parsed before is not parsed again; each Bvh still owns its arrays."""
+    bvh_mod._HIERARCHIES.clear()
+    first = parse_bvh(mixed_text())
+    assert len(bvh_mod._HIERARCHIES) == 1
+    motion = np.random.default_rng(1).uniform(-90, 90, size=(3, N_CH))
+    second = parse_bvh(mixed_text(motion).encode(), "second.bvh")
+    assert len(bvh_mod._HIERARCHIES) == 1  # a hit: the same block
+    assert (second.names, second.parents, second.channels, second.end_parents) == \
+        (first.names, first.parents, first.channels, first.end_parents)
+    assert second.offsets.tobytes() == first.offsets.tobytes()
+    np.testing.assert_allclose(second.motion, motion, atol=5e-7)
+    second.offsets[0, 0] = 123.0  # the caller's copy: neither the memo nor `first` changes
+    third = parse_bvh(mixed_text())
+    assert third.offsets[0, 0] == first.offsets[0, 0] == 1.0
+    assert third.motion.tobytes() == first.motion.tobytes()
+
+
+def test_errors_after_a_seen_hierarchy_name_the_file_and_line(tmp_path):
+    """A MOTION error in a file whose hierarchy was seen before names that file and the same
+    line as when its hierarchy is parsed afresh."""
+    text = mixed_text()
+    lines = _lines(text)
+    n = len(lines)
+    lines[n - 2] = lines[n - 2].replace(" ", " abc ", 1)
+    lines[n - 2] = " ".join(lines[n - 2].split()[:N_CH])
+    broken = "\n".join(lines)
+    bvh_mod._HIERARCHIES.clear()
+    cold = bad(broken, tmp_path, "cold.bvh")
+    parse_bvh(text)  # remembers the hierarchy
+    warm = bad(broken, tmp_path, "warm.bvh")
+    assert warm.file.endswith("warm.bvh")
+    assert (warm.line, warm.problem) == (cold.line, cold.problem)
+    assert warm.line == n - 1
+    assert "'abc' is not a number" in warm.problem
+
+
+def test_hierarchy_memo_is_bounded(monkeypatch):
+    bvh_mod._HIERARCHIES.clear()
+    monkeypatch.setattr(bvh_mod, "_HIERARCHIES_MAX", 4)
+    for k in range(7):  # seven different blocks (the root OFFSET differs)
+        parse_bvh(mixed_text().replace("OFFSET 1.0 90.0 -2.0", f"OFFSET 1.0 90.0 {k}.5"))
+    assert len(bvh_mod._HIERARCHIES) == 4
+    assert all(b"-2.0" not in key for key in bvh_mod._HIERARCHIES)
+    assert any(b"6.5" in key for key in bvh_mod._HIERARCHIES)  # the newest is kept
+    bvh_mod._HIERARCHIES.clear()
+    monkeypatch.setattr(bvh_mod, "_HIERARCHY_KEY_MAX", 100)  # a block longer than this
+    b = parse_bvh(mixed_text())
+    assert b.n_joints == 5 and not bvh_mod._HIERARCHIES

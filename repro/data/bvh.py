@@ -16,7 +16,9 @@ Semantics used here (they are those of the stand-in data; see its SOURCE.md and 
 
 Malformed input raises :class:`repro.errors.DataError` naming the file, the line and the problem.
 The MOTION block is parsed with one C-level numpy call per file (``np.loadtxt``); only when that
-call or a count check fails is the block walked line by line to find and name the culprit.
+call or a count check fails is the block walked line by line to find and name the culprit.  A
+HIERARCHY block seen before (byte for byte: the clips of one capture session share one) is not
+parsed again (:data:`_HIERARCHIES`).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from __future__ import annotations
 import io
 import math
 import re
+import threading
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -343,6 +346,35 @@ def _parse_hierarchy(tk: _Tokens):
 _MOTION_RE = re.compile(rb"^[ \t]*MOTION[ \t]*\r?$", re.M)
 
 
+#: Parsed HIERARCHY blocks by their exact bytes (everything before the ``MOTION`` line), so that
+#: a file whose block was seen before skips the hierarchy parse: the clips of one capture
+#: session share one skeleton text (the 2,902 Bandai-2 clips have three), and parsing it token
+#: by token cost about a fifth of reading a clip.  Only blocks that parsed without error are kept
+#: (every error is raised, with its line, by the full parse); at most :data:`_HIERARCHIES_MAX`
+#: blocks of up to :data:`_HIERARCHY_KEY_MAX` bytes each, the oldest dropped first.
+_HIERARCHIES: dict[bytes, tuple] = {}
+_HIERARCHIES_MAX = 64
+_HIERARCHY_KEY_MAX = 256 * 1024
+_HIERARCHIES_LOCK = threading.Lock()
+
+
+def _remember_hierarchy(key: bytes, motion_line: int, names, parents, offsets, channels,
+                        end_parents, end_offsets) -> tuple:
+    """The cache entry for a parsed HIERARCHY block (arrays read-only; readers get copies)."""
+    off = np.array(offsets, np.float64).reshape(-1, 3)
+    end_off = np.array(end_offsets, np.float64).reshape(-1, 3)
+    off.flags.writeable = False
+    end_off.flags.writeable = False
+    entry = (motion_line, tuple(names), tuple(parents), off, tuple(channels), tuple(end_parents),
+             end_off)
+    if len(key) <= _HIERARCHY_KEY_MAX:
+        with _HIERARCHIES_LOCK:
+            while len(_HIERARCHIES) >= _HIERARCHIES_MAX:
+                _HIERARCHIES.pop(next(iter(_HIERARCHIES)))
+            _HIERARCHIES[key] = entry
+    return entry
+
+
 def _text(b: bytes) -> str:
     try:
         return b.decode("utf-8")
@@ -369,17 +401,23 @@ def parse_bvh(data: bytes | str, source: str | Path = "<bvh>") -> Bvh:
     if b"\r" in raw:  # CR LF (Windows) and CR-only (classic Mac) line ends read as LF
         raw = raw.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
     m = _MOTION_RE.search(raw)
-    head = _text(raw if m is None else raw[: m.start()])
-    motion_line = head.count("\n") + 1
-    tk = _Tokens(head, source)
-    if not tk.toks:
-        raise DataError("empty HIERARCHY block", source, 1)
-    if tk.peek() != "HIERARCHY":
-        raise DataError("not a BVH file (it must start with HIERARCHY)", source, tk.line_of(0))
-    names, parents, offsets, channels, end_parents, end_offsets = _parse_hierarchy(tk)
-    if m is None:
-        raise DataError("no MOTION block after the hierarchy (the file is truncated)", source,
-                        motion_line)
+    key = None if m is None else raw[: m.start()]
+    known = None if key is None else _HIERARCHIES.get(key)
+    if known is None:
+        head = _text(raw if m is None else key)
+        motion_line = head.count("\n") + 1
+        tk = _Tokens(head, source)
+        if not tk.toks:
+            raise DataError("empty HIERARCHY block", source, 1)
+        if tk.peek() != "HIERARCHY":
+            raise DataError("not a BVH file (it must start with HIERARCHY)", source, tk.line_of(0))
+        names, parents, offsets, channels, end_parents, end_offsets = _parse_hierarchy(tk)
+        if m is None:
+            raise DataError("no MOTION block after the hierarchy (the file is truncated)", source,
+                            motion_line)
+        known = _remember_hierarchy(key, motion_line, names, parents, offsets, channels,
+                                    end_parents, end_offsets)
+    motion_line, names, parents, offsets, channels, end_parents, end_offsets = known
     n_ch = sum(len(c) for c in channels)
 
     # ---- MOTION header: "Frames: N" then "Frame Time: t" (each on its own line)
@@ -433,8 +471,7 @@ def parse_bvh(data: bytes | str, source: str | Path = "<bvh>") -> Bvh:
                         f"line(s) follow", source, frames_line)
 
     motion = _parse_frames(body, n_frames, n_ch, source, first_data_line, frames_line)
-    return Bvh(tuple(names), tuple(parents), np.array(offsets, np.float64).reshape(-1, 3),
-               tuple(channels), tuple(end_parents), np.array(end_offsets, np.float64).reshape(-1, 3),
+    return Bvh(names, parents, offsets.copy(), channels, end_parents, end_offsets.copy(),
                frame_time, motion)
 
 

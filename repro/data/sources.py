@@ -30,10 +30,6 @@ MAX_SOURCE_BYTES = 4 * 1024 ** 3
 #: Largest tar extension header (a GNU long name or link, a pax header), which :mod:`tarfile`
 #: reads whole into memory before the member it describes; real ones are a few hundred bytes.
 MAX_TAR_HEADER_BYTES = 1024 ** 2
-#: Bytes :mod:`tarfile`'s stream reader asks the decompressor for at a time.  Its default, one
-#: 10 KiB tar record, meant ~50,000 Python-level reads and joins for the 496 MiB Bandai-2
-#: archive; 1 MiB cuts that to ~500 (the decompressors still inflate no more than is asked).
-STREAM_READ_BYTES = 1024 ** 2
 
 
 def source_fingerprint(source: Path, select: Callable[[str], object] | None = None) -> str:
@@ -165,8 +161,7 @@ def iter_source(source: Path, kind_of: Callable[[str], str | None] | None = None
     raw = None
     try:
         raw = _open_decompressed(source)
-        tf = tarfile.open(fileobj=raw, mode="r|", tarinfo=_CappedTarInfo,
-                          bufsize=STREAM_READ_BYTES)
+        tf = tarfile.open(fileobj=raw, mode="r|", tarinfo=_CappedTarInfo)
     except (_TarCapError, *broken) as e:
         if raw is not None:
             raw.close()
