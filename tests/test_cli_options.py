@@ -115,4 +115,9 @@ def test_a_spec_file_may_not_claim_a_registered_table_id(tmp_path):
                        capture_output=True, text=True, env={"REPRO_HOME": str(tmp_path / "h"),
                                                             "PATH": "/usr/bin:/bin"})
     assert r.returncode == 2 and "Traceback" not in r.stderr
-    assert "claims the id 'marionette/table1'" in r.stderr
+    assert "claims the id 'marionette/table1'" in r.stderr and "--claim-id" in r.stderr
+    r = subprocess.run([sys.executable, "-m", "cli.main", "plan", str(copy), "--claim-id"],
+                       capture_output=True, text=True, env={"REPRO_HOME": str(tmp_path / "h"),
+                                                            "PATH": "/usr/bin:/bin"})
+    assert r.returncode == 0, r.stderr  # asked for explicitly: allowed
+    assert "jobs," in r.stdout and "to run" in r.stdout

@@ -47,6 +47,8 @@ MODES = {
     "repro run marionette/table1 --dataset docs/examples/bandai2-declared.toml": "slow",
     "repro eval classifier --dataset bandai2 --scale medium": "slow",
     "repro eval real --dataset bandai2 --json": "slow",
+    "repro run marionette/table1 --scale quick --executor ray": "slow",
+    "repro runs export latest --mlflow mlruns/": "slow",
     # the lab example: one sequence (each step needs the one before), tests below
     ".venv/bin/python docs/examples/lab_example.py build/lab": "lab",
     "repro data prepare build/lab/lab.toml": "lab",

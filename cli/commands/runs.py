@@ -1,4 +1,5 @@
-"""``repro runs ls | show | diff | reindex``: the run registry (folders + SQLite index)."""
+"""``repro runs ls | show | diff | reindex | export``: the run registry (folders + SQLite index),
+and its copy into an MLflow tracking store."""
 
 from __future__ import annotations
 
@@ -37,6 +38,26 @@ def register(subparsers) -> None:
 
     ri = sub.add_parser("reindex", help="rebuild runs.sqlite from the run folders")
     ri.set_defaults(func=_reindex)
+
+    ex = sub.add_parser("export", help="write runs to an MLflow tracking store (params, every "
+                                       "replicate value, verdicts, table, pictures)",
+                        description="Each run becomes one MLflow run, found again by its tag "
+                                    "repro.run_id: exporting a run again changes nothing. "
+                                    "Needs the mlflow extra (pip install 'repro[mlflow]'); "
+                                    "docs/mlflow.md.")
+    ex.add_argument("runs", nargs="*", metavar="RUN",
+                    help="run ids, unique prefixes of them, or 'latest'")
+    ex.add_argument("--all", action="store_true", help="every run that has ended")
+    ex.add_argument("--mlflow", required=True, metavar="URI",
+                    help="tracking store: a folder or file:/path (file store), "
+                         "http(s)://host:port, sqlite:///mlflow.db (needs the full mlflow)")
+    ex.add_argument("--experiment", default=None,
+                    help="MLflow experiment of new exports (default: the run's table id)")
+    ex.add_argument("--no-pictures", action="store_true",
+                    help="leave out the report page, plots and strips (record, table, values "
+                         "still go)")
+    ex.add_argument("--json", action="store_true", help="machine-readable output")
+    ex.set_defaults(func=_export)
 
 
 # ---------------------------------------------------------------------- helpers
@@ -277,4 +298,40 @@ def _reindex(args: argparse.Namespace) -> int:
     idx = RunIndex()
     n = idx.reindex()
     print(f"indexed {n} runs into {idx.path}")
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    import sys
+
+    from repro.errors import ConfigError
+    from repro.report.mlflow_export import export_runs
+
+    if bool(args.runs) == bool(args.all):
+        raise ConfigError("runs export: name the runs (RUN...) or give --all, not both")
+    refs: list = list(args.runs)
+    if args.all:
+        from repro.store.runs import TERMINAL, read_run_json, reconcile_stale, run_dirs
+
+        for d in run_dirs():
+            reconcile_stale(d)
+            if read_run_json(d)["status"] in TERMINAL:
+                refs.append(d)
+        if not refs:
+            raise ConfigError("runs export --all: no run has ended yet")
+    out = export_runs(refs, args.mlflow, experiment=args.experiment,
+                      pictures=not args.no_pictures)
+    if args.json:
+        print(json.dumps(out, indent=2))
+        return 0
+    for r in out:
+        what = "new MLflow run" if r["created"] else "MLflow run"
+        print(f"{r['run']} -> {what} {r['mlflow_run']} in experiment {r['experiment']!r}: "
+              f"{r['params']} params ({r['new_params']} new), {r['metric_values']} metric "
+              f"values ({r['new_metric_values']} new), {r['tags']} tags, {r['artifacts']} "
+              "artifact files")
+        for n in r["notes"]:
+            print(f"repro: {r['run']}: {n}", file=sys.stderr)
+    print(f"repro: {len(out)} run(s) exported to {out[0]['uri'] if out else args.mlflow}",
+          file=sys.stderr)
     return 0

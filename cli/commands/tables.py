@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import sys
 
@@ -21,9 +22,47 @@ def output_format(text: str) -> str:
     return text
 
 
+def device_option(text: str) -> str:
+    """argparse type: a device name (cpu, cuda, cuda:N), checked before anything is computed."""
+    from repro.specs.scales import device_problem
+
+    problem = device_problem(text)
+    if problem is not None:
+        raise argparse.ArgumentTypeError(problem)
+    return text
+
+
 def _common(p: argparse.ArgumentParser) -> None:
+    _claim_option(p)
     p.add_argument("--scale", default="quick", help="quick | medium | paper (default: quick)")
     p.add_argument("--dataset", default=None, help="override the scale profile's data set")
+    p.add_argument("--device", default=None, type=device_option,
+                   help="cpu | cuda | cuda:N: where train and generate jobs compute (default: "
+                   "the scale profile's device; paper's is cuda); part of every job key")
+
+
+def _claim_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--claim-id", action="store_true",
+                   help="let a spec file given by path use the id of a table under tables/ "
+                   "(its runs then count as that table's)")
+
+
+def _on_device(computes: bool):
+    """Decorator of a table command: run it with ``--device`` overriding every scale profile's
+    device (:func:`repro.specs.scales.device_override`); a command that ``computes`` first
+    checks that this machine has the device (one clear error, exit 2, before any work)."""
+    def wrap(cmd):
+        @functools.wraps(cmd)
+        def run(args) -> int:
+            from repro.engine.runner import claiming_ids
+            from repro.specs.scales import device_override, require_device, resolve_scale
+
+            with device_override(args.device), claiming_ids(getattr(args, "claim_id", False)):
+                if computes:
+                    require_device(resolve_scale(args.scale, args.dataset))
+                return cmd(args)
+        return run
+    return wrap
 
 
 def _retrain_option(p: argparse.ArgumentParser) -> None:
@@ -57,6 +96,12 @@ def register(sub) -> None:
                    "`threads` (1), so N up to the core count; results do not depend on N")
     p.add_argument("--force", nargs="?", const=True, default=None, metavar="KIND",
                    help="recompute everything, or only jobs of KIND (train, generate, measure, ...)")
+    p.add_argument("--executor", choices=("local", "ray"), default="local",
+                   help="where the graph's jobs run: local (this machine, --jobs side by side) "
+                   "or ray (a Ray cluster; pip install 'repro[ray]'); same keys, same numbers")
+    p.add_argument("--address", default=None, metavar="ADDR",
+                   help="with --executor ray: the cluster (HOST:PORT of the head node, "
+                   "ray://HOST:PORT, auto); default: RAY_ADDRESS, else a Ray started here")
     p.add_argument("--seeds", default=None, help="replicate seeds, e.g. 0-9 or 0,3,7 (default: the "
                    "scale's); the first is also the training seed")
     _retrain_option(p)
@@ -133,6 +178,7 @@ def cmd_list(args) -> int:
     return 0
 
 
+@_on_device(computes=False)
 def cmd_plan(args) -> int:
     from repro.engine.runner import plan_table
 
@@ -156,6 +202,7 @@ def cmd_plan(args) -> int:
     return 0
 
 
+@_on_device(computes=True)
 def cmd_run(args) -> int:
     from repro.engine.runner import run_tables, table_view
     from repro.engine.tables import parse_seeds
@@ -165,7 +212,7 @@ def cmd_run(args) -> int:
     runs = run_tables(args.tables, scale=args.scale, dataset=args.dataset, jobs=args.jobs,
                       force=args.force, progress=not args.quiet and sys.stderr.isatty(),
                       seeds=parse_seeds(args.seeds) if args.seeds is not None else None,
-                      retrain=args.retrain)
+                      retrain=args.retrain, backend=executor_backend(args))
     for plan, summary, run_id in runs:
         name = plan.spec.id
         counts = summary.get("counts", {})
@@ -184,6 +231,22 @@ def cmd_run(args) -> int:
             print(f"repro: {plan.spec.id}: rows failed: {', '.join(failed)}", file=sys.stderr)
             rc = max(rc, 1)
     return rc
+
+
+@_on_device(computes=True)
+def executor_backend(args):
+    """The back end ``--executor`` / ``--address`` ask for: None (this machine) or a
+    :class:`~repro.engine.ray_executor.RayBackend`, made before anything is computed (Ray is
+    imported only then; a missing install is one line, exit 2)."""
+    from repro.errors import ConfigError
+
+    if args.executor != "ray":
+        if args.address is not None:
+            raise ConfigError("--address names a Ray cluster: it needs --executor ray")
+        return None
+    from repro.engine.ray_executor import RayBackend
+
+    return RayBackend(args.address)
 
 
 def cmd_sweep(args) -> int:
@@ -207,6 +270,7 @@ def cmd_sweep(args) -> int:
     return 0
 
 
+@_on_device(computes=False)
 def cmd_show(args) -> int:
     from repro.engine.runner import table_view
     from repro.report import render
@@ -216,6 +280,7 @@ def cmd_show(args) -> int:
     return 0
 
 
+@_on_device(computes=True)
 def cmd_rescore(args) -> int:
     from repro.engine.runner import _scale, _spec, latest_run, run_table, table_view
     from repro.errors import ConfigError
@@ -233,6 +298,7 @@ def cmd_rescore(args) -> int:
     return 0
 
 
+@_on_device(computes=False)
 def cmd_verify(args) -> int:
     import json as _json
     from pathlib import Path

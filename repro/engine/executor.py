@@ -1,4 +1,4 @@
-"""Local execution of a job graph (issue 4, item 3).
+"""Execution of a job graph (issue 4, item 3; back ends: issue 15, item 1).
 
 :func:`execute` runs the graph that reaches ``targets``:
 
@@ -17,6 +17,13 @@ jobs in threads would perturb each other's random streams and thread settings; `
 job computes with its own ``threads`` when it declares them (a table's jobs do: the scale
 profile's count, part of their keys, so ``--jobs`` changes only how many run side by side, never
 a result); other jobs get ``threads_per_job`` (default ``cpu_count // N``; inline, the process's).
+
+Back ends: the scheduling (what is ready, failure isolation, interrupt bookkeeping) is
+:func:`_run_graph`'s; *where* a job computes is a :class:`Backend`'s: :class:`_PoolBackend`
+(the process pool above) or, with ``backend=``, another one such as
+:class:`repro.engine.ray_executor.RayBackend` (``repro run --executor ray``).  Every back end
+runs a job through :func:`run_in_worker`, so keys, store protocol and results do not depend on
+it.
 
 Failures: by default a failing job stops the graph (the jobs not yet started are CANCELLED and
 its exception is re-raised).  With ``keep_going=True`` (what a table run uses, so that one
@@ -243,22 +250,44 @@ def _worker_init(q, stop, threads: int | None) -> None:
     _put(("pid", os.getpid()))
 
 
+def run_in_worker(job: Job, key: str, inputs, root: str, force: bool, threads: int | None,
+                  put) -> tuple[str, StoredObject, float]:
+    """Run one job in a worker (a pool process or a Ray worker) against the store at ``root``
+    and return ``(status, object, seconds)``; ``put`` carries its "start" and "progress"
+    messages to the driver.  Every back end runs a job through here, so a job computes the
+    same way (thread settings, store protocol) whatever runs it."""
+    put(("start", key))
+    t0 = time.perf_counter()
+
+    def progress(done, total=None, message=None):
+        put(("progress", key, done, total, message))
+
+    status, obj = run_job(job, key, inputs, Store(root), force=force, threads=threads,
+                          progress=progress)
+    return status, obj, time.perf_counter() - t0
+
+
 def _worker_task(job: Job, key: str, inputs, root: str, force: bool, threads: int | None):
     signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         if _STOP is not None and _STOP.is_set():  # queued before the interrupt: do not start
             raise KeyboardInterrupt
-        _put(("start", key))
-        t0 = time.perf_counter()
-
-        def progress(done, total=None, message=None):
-            _put(("progress", key, done, total, message))
-
-        status, obj = run_job(job, key, inputs, Store(root), force=force, threads=threads,
-                              progress=progress)
-        return status, obj, time.perf_counter() - t0
+        return run_in_worker(job, key, inputs, root, force, threads, _put)
     finally:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def dispatch_progress(msg, hook: ProgressHook, by_key: dict[str, Job]) -> None:
+    """Hand one worker message ("start" or "progress", see :func:`run_in_worker`) to the hook.
+    A hook error is logged, never raised: it must not stop the thread draining the messages."""
+    try:
+        if msg[0] == "start":
+            hook.job_started(by_key[msg[1]], msg[1])
+        elif msg[0] == "progress":
+            _, k, done, total, message = msg
+            hook.job_progress(by_key[k], k, done, total, message)
+    except Exception as e:
+        log.warning("progress hook failed: %s", e)
 
 
 @contextmanager
@@ -283,7 +312,7 @@ def _sigterm_as_interrupt(flag: dict):
 def execute(targets: Iterable[Job], *, store: Store | None = None, jobs: int = 1,
             force: bool | str | Iterable[str] | None = None, hook: ProgressHook | None = None,
             recorder=None, threads_per_job: int | None = None,
-            keep_going: bool = False) -> ExecutionReport:
+            keep_going: bool = False, backend=None) -> ExecutionReport:
     """Run the graph reaching ``targets`` and return every job's (key, status, seconds, object).
 
     ``force``: ``True`` recomputes everything, a kind/label (or several) recomputes those.
@@ -291,6 +320,10 @@ def execute(targets: Iterable[Job], *, store: Store | None = None, jobs: int = 1
     read and written) and is marked INTERRUPTED or FAILED when the graph stops early.
     Re-raises ``KeyboardInterrupt`` and a failing job's exception (with a note naming the job),
     unless ``keep_going``: then a failing job only cancels its dependents (module docstring).
+    ``backend``: run the jobs elsewhere than on this machine's process pool, e.g. a
+    :class:`repro.engine.ray_executor.RayBackend`; called as ``backend(store, hook, by_key,
+    threads_per_job)`` only when there is something to run, it returns a context manager that
+    yields a :class:`Backend` (``jobs`` then does not apply).
     """
     store = store or Store()
     hook = hook or ProgressHook()
@@ -322,17 +355,21 @@ def execute(targets: Iterable[Job], *, store: Store | None = None, jobs: int = 1
         elif d.action == planmod.SKIP:
             finish(JobResult(job, job.key(), SKIPPED))
     to_run = [j for j in order if dec[j.key()].action == planmod.RUN]
-    if threads_per_job is None and jobs > 1:
-        threads_per_job = max(1, (os.cpu_count() or 1) // jobs)
     flag: dict[str, bool] = {}
     try:
         with _sigterm_as_interrupt(flag):
-            if jobs <= 1 or len(to_run) <= 1:
+            if backend is not None and to_run:
+                with backend(store, hook, by_key, threads_per_job) as b:
+                    _run_graph(to_run, dec, results, finish, b, flag, keep_going)
+            elif jobs <= 1 or len(to_run) <= 1:
                 _run_inline(to_run, dec, results, store, finish, hook, threads_per_job,
                             keep_going)
             else:
-                _run_pool(to_run, dec, results, by_key, store, finish, hook, jobs,
-                          threads_per_job, flag, keep_going)
+                if threads_per_job is None:
+                    threads_per_job = max(1, (os.cpu_count() or 1) // jobs)
+                with _PoolBackend(store, hook, by_key, min(jobs, len(to_run)),
+                                  threads_per_job) as b:
+                    _run_graph(to_run, dec, results, finish, b, flag, keep_going)
     except KeyboardInterrupt:
         report.interrupted = True
         for j in to_run:
@@ -422,45 +459,37 @@ def _run_inline(to_run, dec, results, store, finish, hook, threads, keep_going=F
         finish(JobResult(job, k, status, time.perf_counter() - t0, obj))
 
 
-def _signal_all(pids: Iterable[int], sig: int) -> None:
-    for pid in list(pids):
-        try:
-            os.kill(pid, sig)
-        except (ProcessLookupError, PermissionError):
-            pass
+class Backend:
+    """Where :func:`_run_graph` runs jobs: this machine's process pool (:class:`_PoolBackend`)
+    or a Ray cluster (:mod:`repro.engine.ray_executor`).  A *handle* is whatever
+    :meth:`submit` returns (hashable).  The scheduling (dependency order, failure isolation,
+    interrupt bookkeeping) is :func:`_run_graph`'s, the same for every back end."""
+
+    def submit(self, job: Job, key: str, inputs: tuple[StoredObject, ...], force: bool) -> Any:
+        """Start ``job`` (its inputs are published) and return its handle."""
+        raise NotImplementedError
+
+    def wait(self, handles: list) -> Iterable:
+        """Block until at least one of ``handles`` has finished; return the finished ones."""
+        raise NotImplementedError
+
+    def outcome(self, handle) -> tuple[str, StoredObject, float]:
+        """``(status, object, seconds)`` of a finished job; raises the job's exception."""
+        raise NotImplementedError
+
+    def stop(self, handles: list, flag: dict) -> None:
+        """On an interrupt: cancel the queued jobs and interrupt the running ones (``flag``
+        says whether it came as SIGTERM)."""
+        raise NotImplementedError
+
+    def settled(self, handle) -> tuple[str, StoredObject | None]:
+        """After :meth:`stop`: the job's status (INTERRUPTED, CANCELLED, or what it finished
+        with) and its object, if any."""
+        raise NotImplementedError
 
 
-def _run_pool(to_run, dec, results, by_key, store, finish, hook, jobs, threads, flag,
-              keep_going=False) -> None:
-    ctx = multiprocessing.get_context("spawn")
-    q = ctx.Queue()
-    stop_workers = ctx.Event()
-    pids: set[int] = set()
-    stop = threading.Event()
-
-    def drain() -> None:
-        while True:
-            try:
-                msg = q.get(timeout=0.1)
-            except queue.Empty:
-                if stop.is_set():
-                    return
-                continue
-            except (EOFError, OSError, ValueError):
-                return
-            try:
-                if msg[0] == "pid":
-                    pids.add(msg[1])
-                elif msg[0] == "start":
-                    hook.job_started(by_key[msg[1]], msg[1])
-                elif msg[0] == "progress":
-                    _, k, done, total, message = msg
-                    hook.job_progress(by_key[k], k, done, total, message)
-            except Exception as e:  # a hook error must not kill the drain thread
-                log.warning("progress hook failed: %s", e)
-
-    drainer = threading.Thread(target=drain, name="repro-progress", daemon=True)
-    drainer.start()
+def _run_graph(to_run, dec, results, finish, backend: Backend, flag, keep_going=False) -> None:
+    """Run ``to_run`` on ``backend``, each job once its inputs are published."""
     run_keys = {j.key() for j in to_run}
     waiting = {j.key(): {i.key() for i in j.inputs if i.key() in run_keys} for j in to_run}
     dependents: dict[str, list[Job]] = {}
@@ -470,24 +499,20 @@ def _run_pool(to_run, dec, results, by_key, store, finish, hook, jobs, threads, 
     ready = [j for j in to_run if not waiting[j.key()]]
     running: dict[Any, tuple[Job, float]] = {}
     failure: BaseException | None = None
-    pool = ProcessPoolExecutor(max_workers=min(jobs, len(to_run)), mp_context=ctx,
-                               initializer=_worker_init, initargs=(q, stop_workers, threads))
     try:
         while ready or running:
             while ready and failure is None:
                 job = ready.pop(0)
                 k = job.key()
-                fut = pool.submit(_worker_task, job, k, _inputs(job, results), str(store.root),
-                                  dec[k].forced, threads)
-                running[fut] = (job, time.perf_counter())
+                handle = backend.submit(job, k, _inputs(job, results), dec[k].forced)
+                running[handle] = (job, time.perf_counter())
             if not running:
                 break
-            done, _ = wait(list(running), return_when=FIRST_COMPLETED)
-            for fut in done:
-                job, t0 = running.pop(fut)
+            for handle in backend.wait(list(running)):
+                job, t0 = running.pop(handle)
                 k = job.key()
                 try:
-                    status, obj, seconds = fut.result()
+                    status, obj, seconds = backend.outcome(handle)
                 except KeyboardInterrupt:
                     finish(JobResult(job, k, INTERRUPTED, time.perf_counter() - t0))
                     raise
@@ -507,14 +532,13 @@ def _run_pool(to_run, dec, results, by_key, store, finish, hook, jobs, threads, 
         if failure is not None:
             raise failure
     except KeyboardInterrupt:
-        stop_workers.set()
-        _stop_workers(pool, running, pids, results, finish, flag)
+        backend.stop(list(running), flag)
+        for handle, (job, t0) in running.items():
+            if job.key() in results:
+                continue
+            status, obj = backend.settled(handle)
+            finish(JobResult(job, job.key(), status, time.perf_counter() - t0, obj))
         raise
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
-        stop.set()
-        drainer.join(timeout=2.0)
-        q.close()
 
 
 def _cancel_dependents(key: str, dependents: dict[str, list[Job]], results, finish) -> None:
@@ -529,30 +553,93 @@ def _cancel_dependents(key: str, dependents: dict[str, list[Job]], results, fini
         stack.extend(dependents.get(d.key(), []))
 
 
-def _stop_workers(pool, running, pids, results, finish, flag) -> None:
-    """Interrupt running jobs (SIGINT, then SIGKILL after a grace period) and record them."""
-    for fut in running:
-        fut.cancel()  # those still waiting in the executor's queue
-    pending = {f for f in running if not f.cancelled()}
-    if pending and not flag.get("sigterm"):
-        # Ctrl-C in a terminal reaches the workers too: give them a moment to stop cleanly.
-        _, pending = wait(pending, timeout=2.0)
-    if pending:
-        _signal_all(pids, signal.SIGINT)
-        _, pending = wait(pending, timeout=10.0)
-    if pending:
-        _signal_all(pids, signal.SIGKILL)
-    for fut, (job, t0) in list(running.items()):
-        k = job.key()
-        if k in results:
-            continue
-        status, obj = INTERRUPTED, None
-        if fut.done() and not fut.cancelled():
+def _signal_all(pids: Iterable[int], sig: int) -> None:
+    for pid in list(pids):
+        try:
+            os.kill(pid, sig)
+        except (ProcessLookupError, PermissionError):
+            pass
+
+
+class _PoolBackend(Backend):
+    """This machine's back end: a ``spawn`` process pool of ``workers`` processes (module
+    docstring); the workers report their pids, starts and progress through a queue that a
+    thread drains into the hook."""
+
+    def __init__(self, store: Store, hook: ProgressHook, by_key: dict[str, Job], workers: int,
+                 threads: int | None):
+        self.store, self.hook, self.by_key = store, hook, by_key
+        self.threads = threads
+        ctx = multiprocessing.get_context("spawn")
+        self.q = ctx.Queue()
+        self.stop_workers = ctx.Event()
+        self.pids: set[int] = set()
+        self._done = threading.Event()
+        self.drainer = threading.Thread(target=self._drain, name="repro-progress", daemon=True)
+        self.pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
+                                        initializer=_worker_init,
+                                        initargs=(self.q, self.stop_workers, threads))
+
+    def __enter__(self) -> _PoolBackend:
+        self.drainer.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.pool.shutdown(wait=True, cancel_futures=True)
+        self._done.set()
+        self.drainer.join(timeout=2.0)
+        self.q.close()
+
+    def _drain(self) -> None:
+        while True:
             try:
-                status, obj, _ = fut.result()
+                msg = self.q.get(timeout=0.1)
+            except queue.Empty:
+                if self._done.is_set():
+                    return
+                continue
+            except (EOFError, OSError, ValueError):
+                return
+            if msg[0] == "pid":
+                self.pids.add(msg[1])
+            else:
+                dispatch_progress(msg, self.hook, self.by_key)
+
+    def submit(self, job, key, inputs, force):
+        return self.pool.submit(_worker_task, job, key, inputs, str(self.store.root), force,
+                                self.threads)
+
+    def wait(self, handles):
+        done, _ = wait(handles, return_when=FIRST_COMPLETED)
+        return done
+
+    def outcome(self, handle):
+        return handle.result()
+
+    def stop(self, handles, flag) -> None:
+        """Cancel queued jobs; interrupt running ones (SIGINT, then SIGKILL after a grace
+        period)."""
+        self.stop_workers.set()
+        for fut in handles:
+            fut.cancel()  # those still waiting in the executor's queue
+        pending = {f for f in handles if not f.cancelled()}
+        if pending and not flag.get("sigterm"):
+            # Ctrl-C in a terminal reaches the workers too: give them a moment to stop cleanly.
+            _, pending = wait(pending, timeout=2.0)
+        if pending:
+            _signal_all(self.pids, signal.SIGINT)
+            _, pending = wait(pending, timeout=10.0)
+        if pending:
+            _signal_all(self.pids, signal.SIGKILL)
+        self.pool.shutdown(wait=False, cancel_futures=True)
+
+    def settled(self, handle):
+        if handle.cancelled():
+            return CANCELLED, None
+        if handle.done():
+            try:
+                status, obj, _ = handle.result()
+                return status, obj
             except BaseException:
-                status, obj = INTERRUPTED, None
-        elif fut.cancelled():
-            status = CANCELLED
-        finish(JobResult(job, k, status, time.perf_counter() - t0, obj))
-    pool.shutdown(wait=False, cancel_futures=True)
+                pass
+        return INTERRUPTED, None

@@ -9,7 +9,7 @@ for one seed, sample, evaluate, ...).  Its key is :func:`repro.keys.content_key`
      "plugins": [module names loaded by name at run time],
      "config": {...resolved...}, "inputs": [input keys, in order],
      "fingerprints": {"dataset": ..., "evaluator": ...}, "seed": int | None,
-     "threads": int | None}
+     "threads": int | None[, "device": {...}]}
 
 Canonical JSON makes the key independent of dict order; the order of ``inputs`` is kept
 because the implementation receives them positionally.  ``label`` (display, ``plan --why``
@@ -23,6 +23,12 @@ lists them and their code (transitively) is hashed with its own.
 for the job's duration, whatever ``--jobs`` says): float reductions, hence trained weights,
 depend on it, so it is part of the key (a table's jobs take it from the scale profile).  A job
 without one runs with the executor's default and must not depend on the count.
+
+``device`` is where the job computes (``"cpu"``, ``"cuda"``, ``"cuda:N"``; None = the CPU; a
+table's jobs take it from the scale profile or ``--device``).  A CUDA job's key holds
+``"device"``: the device type with the CUDA determinism settings it computes under
+(:func:`repro.seeding.device_key`); a CPU job's key has no such entry, so it is what it was
+before jobs named a device.  The job implementation applies it (:func:`repro.seeding.prepare_device`).
 
 A job with ``seed=None`` is cached only when it declares ``deterministic=True``; otherwise it
 (and everything downstream of it) is re-run every time and never published (unseeded work is
@@ -75,6 +81,7 @@ class Job:
     deterministic: bool = False
     threads: int | None = None
     plugins: tuple[str, ...] = ()
+    device: str | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.kind, str) or not self.kind.strip():
@@ -88,6 +95,11 @@ class Job:
         if self.threads is not None and (isinstance(self.threads, bool)
                                          or not isinstance(self.threads, int) or self.threads < 1):
             raise ValueError(f"job threads must be an int >= 1 or None, got {self.threads!r}")
+        if self.device is not None:
+            from repro.specs.scales import device_problem
+
+            if device_problem(self.device) is not None:
+                raise ValueError(f"job device: {device_problem(self.device)}")
         if not isinstance(self.config, Mapping) or not isinstance(self.fingerprints, Mapping):
             raise ValueError("job config and fingerprints must be mappings")
 
@@ -133,8 +145,11 @@ class Job:
     def key_parts(self) -> dict[str, Any]:
         """What the key hashes (see the module docstring)."""
         from repro.engine.source_hash import source_hash
+        from repro.seeding import device_key
 
+        device = device_key(self.device)
         return {
+            **({} if device is None else {"device": device}),
             "schema": KEY_SCHEMA,
             "kind": self.kind,
             "impl": self.impl,

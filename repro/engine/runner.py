@@ -12,6 +12,8 @@ computing anything; ``rescore`` recomputes only the ``measure`` jobs from stored
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import json
 import sys
 from pathlib import Path
@@ -20,20 +22,38 @@ from typing import Any
 from repro.errors import ConfigError, ReproError
 
 
+#: whether a spec file outside ``tables/`` may take a registered table's id (``--claim-id``)
+_CLAIM_IDS: contextvars.ContextVar[bool] = contextvars.ContextVar("claim_ids", default=False)
+
+
+@contextlib.contextmanager
+def claiming_ids(allow: bool):
+    """Within the block, a spec file given by path may use the id of a table under
+    ``tables/`` when ``allow`` (its runs then count as that table's: ``repro show`` of the id
+    shows them)."""
+    token = _CLAIM_IDS.set(bool(allow))
+    try:
+        yield
+    finally:
+        _CLAIM_IDS.reset(token)
+
+
 def _spec(name: str):
     """The spec ``name`` names; a spec file outside ``tables/`` may not claim the id of a
-    registered table (its runs would become that table's newest run)."""
+    registered table (its runs would become that table's newest run) unless
+    :func:`claiming_ids` allows it."""
     from repro.specs.load import find_spec
 
     spec = find_spec(name)
     p = Path(name)
-    if p.suffix == ".toml" and p.is_file():
+    if p.suffix == ".toml" and p.is_file() and not _CLAIM_IDS.get():
         from repro.paths import tables_root
 
         own = tables_root() / f"{spec.id}.toml"
         if own.is_file() and own.resolve() != p.resolve():
             raise ConfigError(f"{name}: spec file claims the id {spec.id!r} of "
-                              f"tables/{spec.id}.toml; give it an id of its own")
+                              f"tables/{spec.id}.toml; give it an id of its own (or pass "
+                              "--claim-id to let its runs count as that table's)")
     return spec
 
 
@@ -222,26 +242,30 @@ def _real_rows(e: dict, evaluator_key: str, ev, clips) -> dict:
 def run_table(name: str, *, scale: str = "quick", dataset: str | None = None, jobs: int = 1,
               force: Any = None, progress: bool = True,
               seeds: tuple[int, ...] | None = None, retrain: bool = False,
-              budget: float = 1.0, evaluator_seed: int = 0) -> tuple[Any, dict, str]:
+              budget: float = 1.0, evaluator_seed: int = 0, backend: Any = None
+              ) -> tuple[Any, dict, str]:
     """Run one table; returns (plan, summary, run_id).  ``seeds`` replaces the profile's
     replicate seeds (the first one is also the training seed); ``retrain`` trains one model
     per replicate; ``budget`` scales every method's epochs; ``evaluator_seed`` trains the
-    evaluators with another seed (:func:`repro.engine.tables.build_plan`)."""
+    evaluators with another seed (:func:`repro.engine.tables.build_plan`); ``backend`` runs
+    the graph elsewhere (:func:`repro.engine.executor.execute`, e.g. on Ray)."""
     return run_tables([name], scale=scale, dataset=dataset, jobs=jobs, force=force,
                       progress=progress, seeds=seeds, retrain=retrain, budget=budget,
-                      evaluator_seed=evaluator_seed)[0]
+                      evaluator_seed=evaluator_seed, backend=backend)[0]
 
 
 def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = None,
                jobs: int = 1, force: Any = None, progress: bool = True,
                seeds: tuple[int, ...] | None = None, retrain: bool = False,
-               budget: float = 1.0, evaluator_seed: int = 0) -> list[tuple[Any, dict, str]]:
+               budget: float = 1.0, evaluator_seed: int = 0,
+               backend: Any = None) -> list[tuple[Any, dict, str]]:
     """Run several tables as one job graph; one (plan, summary, run_id) per distinct name.
 
     Every spec is resolved first (a typo stops before anything is computed); each table gets
     its own run record, evaluators and gate; then the jobs of all tables run as one graph, so
     ``--jobs N`` overlaps them (Tables 1, 2 and 4 share MarioNet's training and their other
-    trainings run side by side instead of one table after another)."""
+    trainings run side by side instead of one table after another).  With a ``backend`` (Ray)
+    the graph's jobs run there; the evaluators and the gate still run here."""
     from contextlib import ExitStack
 
     from repro.engine.tables import build_plan, collect_trainings, collect_values, summarise
@@ -251,6 +275,9 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
     specs = list({s.id: s for s in (_spec(n) for n in names)}.values())
     plans = [build_plan(spec, sc, dataset, seeds, retrain, budget, evaluator_seed)
              for spec in specs]
+    from repro.engine.plan import check_force
+
+    check_force(force, [j for p in plans for rp in p.rows for j in _row_targets(rp)])
     out = []
     with ExitStack() as stack:
         recs = [stack.enter_context(RunRecorder(
@@ -262,7 +289,8 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
         for p in plans:
             if p.jobs():
                 _gate(p)
-        executed = _execute_plans(plans, recs, jobs=jobs, force=force, progress=progress)
+        executed = _execute_plans(plans, recs, jobs=jobs, force=force, progress=progress,
+                                  backend=backend)
         for p, rec, ev, (reports, counts) in zip(plans, recs, evaluators, executed):
             values = collect_values(p, reports)
             rec.add_values(values)
@@ -307,7 +335,8 @@ def _row_targets(rp) -> list:
 
 
 def _execute_plans(plans: list, recorders: list, *, jobs: int, force: Any,
-                   progress: bool) -> list[tuple[dict[str, Any], dict[str, int]]]:
+                   progress: bool, backend: Any = None
+                   ) -> list[tuple[dict[str, Any], dict[str, int]]]:
     """Execute every row of every plan as one graph, so ``--jobs N`` overlaps rows and tables
     (five trainings of a table run N at a time, not one after another).  A job that fails
     cancels only what depends on it (``keep_going``): each row it reaches is marked FAILED
@@ -336,10 +365,10 @@ def _execute_plans(plans: list, recorders: list, *, jobs: int, force: Any,
     if hook is not None:
         with hook:
             report = execute(list(targets.values()), jobs=jobs, force=force, hook=hook,
-                             recorder=fan, keep_going=True)
+                             recorder=fan, keep_going=True, backend=backend)
     else:
         report = execute(list(targets.values()), jobs=jobs, force=force, recorder=fan,
-                         keep_going=True)
+                         keep_going=True, backend=backend)
     out = []
     for p, mine in zip(plans, keys):
         reports: dict[str, Any] = {}
@@ -439,6 +468,9 @@ def plan_table(name: str, *, scale: str = "quick", dataset: str | None = None, w
 
     spec = _spec(name)
     plan = build_plan(spec, _scale(scale, dataset), dataset, seeds, retrain)
+    from repro.engine.plan import check_force
+
+    check_force(force, plan.jobs())
     entries = plan_jobs(plan.jobs(), force=force, why=why)
     out = [{"job": e.job.name if hasattr(e.job, "name") else e.job.label, "kind": e.job.kind,
             "key": e.key[:12], "cached": e.cached, "why": getattr(e, "why", None)} for e in entries]

@@ -11,6 +11,11 @@ Each step reads only its job's config, seed and input objects, and writes its pa
   re-measures without regenerating);
 - ``measure``: one replicate's metric values for a generated set (evaluator features kept);
 - ``measure_real``: one replicate of the "Real" row.
+
+Device: ``train_method`` and ``generate`` compute on the job's device (``Job.device``, from the
+scale profile or ``--device``; :func:`job_device` applies the CUDA determinism settings first);
+saved models and samples are CPU tensors, so every later step reads them anywhere.  ``measure``
+jobs score with the evaluator on the CPU.
 """
 
 from __future__ import annotations
@@ -98,8 +103,17 @@ def validation_settings(cfg: dict, seed: int) -> tuple[float, int]:
     return float(v.get("fraction", 0.0) or 0.0), int(v.get("seed", seed))
 
 
+def job_device(ctx):
+    """The ``torch.device`` the job computes on (its ``device``; the CPU when it names none),
+    prepared by :func:`repro.seeding.prepare_device` (CUDA determinism, in one place)."""
+    from repro.seeding import prepare_device
+
+    return prepare_device(getattr(ctx.job, "device", None))
+
+
 def train_method(ctx) -> None:
     from repro.models.base import generator_class
+    from repro.train.loop import use_device
     from repro.train.validation import holdout
 
     cfg = ctx.config
@@ -123,7 +137,9 @@ def train_method(ctx) -> None:
         ctx.progress(epoch + 1, epochs, msg)
 
     kw = {} if val_items is None else {"val_items": val_items}
-    result = gen.fit(train_items, seed=ctx.seed, ckpt_dir=ctx.scratch, on_epoch=on_epoch, **kw)
+    with use_device(job_device(ctx)):
+        result = gen.fit(train_items, seed=ctx.seed, ckpt_dir=ctx.scratch, on_epoch=on_epoch,
+                         **kw)
     gen.save(ctx.out)
     history = getattr(result, "history", None) or []
     (ctx.out / TRAINING).write_text(json.dumps(
@@ -201,6 +217,9 @@ def _generators(cfg: dict, inputs) -> tuple:
 def generate(ctx) -> None:
     cfg, proto, clips, items = _replicate_inputs(ctx)
     gen, models = _generators(cfg, ctx.inputs)
+    dev = job_device(ctx)
+    for g in (gen, *models.values()):  # sampling follows the network's device
+        g.to(dev)
     extra = _protocol_extras(cfg, proto, clips)
     if getattr(proto, "takes_models", False):  # MultiAct: extra models and the row's options
         extra.update(models=models, row_config=cfg.get("method_config") or {})

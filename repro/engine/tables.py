@@ -248,7 +248,8 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
                      budget=float(budget), evaluator_seed=int(evaluator_seed))
     # held-out share of the training actions for the learning curve (repro.train.validation)
     validation = {"fraction": float(getattr(scale, "validation_fraction", 0.0) or 0.0), "seed": 0}
-    job = partial(Job, threads=scale.threads)  # every table job computes with the profile's count
+    # every table job computes with the profile's thread count, on its device (--device)
+    job = partial(Job, threads=scale.threads, device=getattr(scale, "device", "cpu"))
     for row in spec.rows:
         rp = RowPlan(row.id, row.method)
         plan.rows.append(rp)

@@ -199,6 +199,17 @@ class A2MNet(nn.Module):
         tc = t / (lengths - 1).clamp(min=1).to(onehot.dtype)
         return torch.cat([onehot, tc[:, None]], dim=-1)
 
+    def conditions(self, onehot: torch.Tensor, T: int, lengths: torch.Tensor) -> torch.Tensor:
+        """(B, T, n_cond): :meth:`condition` of frames ``0..T-1`` at once (training builds
+        them once per batch, not once per frame).  Bitwise the same values: ``t / d`` is
+        ``d.reciprocal() * t`` in torch, which is what this computes for every ``t``."""
+        frames = onehot[:, None].expand(-1, T, -1)
+        if not self.cfg.time_counter:
+            return frames
+        recip = (lengths - 1).clamp(min=1).to(onehot.dtype).reciprocal()
+        tc = recip[:, None] * torch.arange(T, dtype=onehot.dtype, device=onehot.device)
+        return torch.cat([frames, tc[..., None]], dim=-1)
+
 
 def kl_gaussians(mu1, logvar1, mu2, logvar2) -> torch.Tensor:
     """KL(N(μ₁, σ₁²) ‖ N(μ₂, σ₂²)) summed over the last dimension (A2M's ``kl_criterion``)."""
@@ -290,8 +301,9 @@ class A2M(Generator):
         self_feed = bool(torch.rand(()) < cfg.self_feed_ratio)
         prev = batch["start"]
         preds, kls = [], []
+        conds = net.conditions(onehot, T, lengths)
         for t in range(T):
-            c = net.condition(onehot, t, lengths)
+            c = conds[:, t]
             mu, logvar, h_post = net.posterior(torch.cat([x[:, t], c], -1), h_post)
             mu_p, logvar_p, h_prior = net.prior(torch.cat([prev, c], -1), h_prior)
             z = mu + torch.exp(0.5 * logvar) * torch.randn_like(mu)

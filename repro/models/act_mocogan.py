@@ -97,6 +97,7 @@ from repro.errors import ConfigError, DataError
 from repro.models.base import Generator, GeneratorConfig, epoch_batches, register
 from repro.models.baseline_io import item_noise
 from repro.seeding import derive_seed, numpy_rng
+from repro.train.loop import to_device
 
 #: loss terms of the discriminators / of the generator (keys of :meth:`ActMoCoGAN.losses`)
 D_TERMS = ("d_image", "d_video", "d_category")
@@ -279,13 +280,13 @@ class ActMoCoGAN(Generator):
         cfg = self.config
         real, labels = batch["joints"], batch["labels"]
         B, T = real.shape[:2]
-        z_c = torch.randn(B, cfg.dim_z_content, dtype=real.dtype)
-        h0 = torch.randn(B, cfg.dim_z_motion, dtype=real.dtype)
-        eps = torch.randn(B, T, cfg.dim_z_motion, dtype=real.dtype)
+        z_c = torch.randn(B, cfg.dim_z_content, dtype=real.dtype, device=real.device)
+        h0 = torch.randn(B, cfg.dim_z_motion, dtype=real.dtype, device=real.device)
+        eps = torch.randn(B, T, cfg.dim_z_motion, dtype=real.dtype, device=real.device)
         fake = net.generate(labels, z_c, h0, eps)                    # (B, T, J, 3)
-        rows = torch.arange(B)
-        real_pose = real[rows, torch.randint(0, T, (B,))]
-        fake_pose = fake[rows, torch.randint(0, T, (B,))]
+        rows = torch.arange(B, device=real.device)
+        real_pose = real[rows, torch.randint(0, T, (B,), device=real.device)]
+        fake_pose = fake[rows, torch.randint(0, T, (B,), device=real.device)]
         ones, zeros = real.new_ones(B), real.new_zeros(B)
         bce = F.binary_cross_entropy_with_logits
 
@@ -411,7 +412,7 @@ class ActMoCoGAN(Generator):
         out = torch.zeros(N, n_frames, self.n_joints, 3)
         for s in range(0, N, cfg.sample_batch_size):
             sl = slice(s, min(N, s + cfg.sample_batch_size))
-            out[sl] = net.generate(labels[sl], z_c[sl], h0[sl], eps[sl])
+            out[sl] = net.generate(*to_device((labels[sl], z_c[sl], h0[sl], eps[sl]), self.device)).cpu()
         return out
 
     def sample(self, cond_items, *, seed: int, use_mean: bool = False):

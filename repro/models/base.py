@@ -167,6 +167,21 @@ class Generator(abc.ABC):
 
     # -- shared --------------------------------------------------------------------------------
 
+    @property
+    def device(self):
+        """The ``torch.device`` the network lives on: sampling makes its tensors there and
+        returns its results on the CPU (``fit`` trains on the job's device,
+        :func:`repro.train.loop.use_device`)."""
+        from repro.train.loop import module_device
+
+        return module_device(self.network)
+
+    def to(self, device) -> "Generator":
+        """Move the network to ``device`` (a name or ``torch.device``) for sampling; returns
+        ``self``.  Saved weights load on the CPU wherever they were trained."""
+        self.network.to(device)
+        return self
+
     def _make_network(self):
         """A fresh, untrained ``torch.nn.Module`` for this config (subclasses using :meth:`_build`)."""
         raise NotImplementedError
@@ -215,11 +230,14 @@ class Generator(abc.ABC):
         is the training loss on held-out items; the loop runs it in eval mode, no dropout)."""
         import torch
 
+        from repro.train.loop import module_device, to_device
+
         def validate(model, epoch):
             sums: dict[str, float] = {}
+            dev = module_device(model)
             for s in range(0, n_val, batch_size):
                 idx = torch.arange(s, min(n_val, s + batch_size))
-                out = self.training_step(model, self._crop(val_data, idx), epoch)
+                out = self.training_step(model, to_device(self._crop(val_data, idx), dev), epoch)
                 w = idx.numel()
                 for k, v in out.items():
                     sums[k] = sums.get(k, 0.0) + w * float(v.detach() if hasattr(v, "detach") else v)
@@ -255,7 +273,15 @@ class Generator(abc.ABC):
                 "config": self.config.model_dump(mode="json"), "skeleton": self.skeleton.to_dict(),
                 "n_classes": self.n_classes, "fps": self.fps}
         tmp = d / f".{WEIGHTS_FILE}.{os.getpid()}.tmp"
-        torch.save(self.network.state_dict(), tmp)
+        state = self.network.state_dict()
+        if self.device.type != "cpu":  # saved as CPU tensors: a CUDA-trained model loads anywhere
+            from repro.train.loop import to_device
+
+            state = to_device(state, "cpu")
+        # through a file handle: given a path, torch names the zip's inner folder after it, so
+        # the pid-named temp path made the bytes differ between processes
+        with open(tmp, "wb") as fh:
+            torch.save(state, fh)
         os.replace(tmp, d / WEIGHTS_FILE)
         tmp = d / f".{CONFIG_FILE}.{os.getpid()}.tmp"
         tmp.write_bytes(canonical_json(meta))

@@ -233,8 +233,8 @@ class GeneratedItems:
 def pad_last(x: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
     """Repeat each item's last valid frame (dim 1) past its length."""
     T = x.shape[1]
-    t = torch.minimum(torch.arange(T)[None, :], (lengths - 1).clamp(min=0)[:, None])
-    return x[torch.arange(x.shape[0])[:, None], t]
+    t = torch.minimum(torch.arange(T, device=lengths.device)[None, :], (lengths - 1).clamp(min=0)[:, None])
+    return x[torch.arange(x.shape[0], device=x.device)[:, None], t]
 
 
 def _pose_features(clips, rows: np.ndarray, axis: str) -> np.ndarray:

@@ -5,9 +5,9 @@ The layers follow Vaswani et al. (2017) as PyTorch's ``nn.Transformer*Layer`` do
 :func:`torch.nn.functional.scaled_dot_product_attention` so that a decoder can run
 
 - **in parallel** over a whole sequence with a causal mask (training, teacher forcing), or
-- **one step at a time** with a :class:`DecoderCache` holding, per layer, the self-attention
-  keys/values of the steps already taken and the cross-attention keys/values of the memory
-  (computed once).  Step ``t`` then costs one token instead of ``t`` tokens.
+- **one step at a time** with a :class:`DecoderCache` holding, per layer, the inputs of the
+  steps already taken, and the memory (both: what the keys/values are projected from).  Step
+  ``t`` then costs one token instead of ``t`` tokens.
 
 Both paths compute the same function: the parallel causal output at position ``t`` equals the
 ``t``-th cached step (tested to 1e-5).
@@ -143,22 +143,75 @@ class TransformerEncoder(nn.Module):
 
 @dataclass
 class DecoderCache:
-    """Per-layer keys/values for incremental decoding.
+    """Per-layer state for incremental decoding, allocated once by
+    :meth:`TransformerDecoder.init_cache` and written in place by :meth:`TransformerDecoder.step`.
 
-    ``self_k[i]``/``self_v[i]``: (B, H, t, dh) self-attention keys/values of the ``t`` steps
-    taken so far (grown by :meth:`TransformerDecoder.step`); ``mem_k[i]``/``mem_v[i]``: the
-    cross-attention keys/values of the memory, computed once; ``mem_mask``: its padding mask.
+    A head's keys and values are linear in what they are projected from (``k_j = W_k y_j +
+    b_k``), so the cache keeps that instead of the keys/values: ``inputs[i]`` (B, capacity, d)
+    holds layer ``i``'s inputs ``y_0..y_{length-1}`` of the steps taken so far (a step writes
+    its row and attends over the filled prefix: no step reallocates or copies the past), and
+    ``memory`` (B, Lk, d) the cross-attention memory, shared by every layer and never
+    projected.  That is half the bytes of keys plus values and no per-step key/value
+    projection; :func:`_step_attention` folds ``W_k`` into the query and ``W_v`` into the
+    output instead.  ``mem_bias``: the memory's padding as an additive (B, 1, Lk) mask,
+    ``None`` when no key is padded.  ``weights[i]``: layer ``i``'s weights laid out for
+    one-token steps (:meth:`DecoderLayer.step_weights`), copies made once per cache; the
+    module's parameters are untouched.
     """
 
-    mem_k: list
-    mem_v: list
-    mem_mask: torch.Tensor | None
-    self_k: list = field(default_factory=list)
-    self_v: list = field(default_factory=list)
+    memory: torch.Tensor
+    mem_bias: torch.Tensor | None
+    weights: list
+    inputs: list = field(default_factory=list)
+    length: int = 0
 
     @property
-    def length(self) -> int:
-        return 0 if not self.self_k or self.self_k[0] is None else int(self.self_k[0].shape[-2])
+    def capacity(self) -> int:
+        return int(self.inputs[0].shape[1]) if self.inputs else 0
+
+    def reserve(self, n: int) -> None:
+        """Make room for at least ``n`` steps (doubling; a copy only when a caller decodes past
+        the length given to ``init_cache``)."""
+        if n <= self.capacity:
+            return
+        cap = max(n, 2 * self.capacity)
+        for i, old in enumerate(self.inputs):
+            new = old.new_empty(old.shape[0], cap, old.shape[2])
+            new[:, :self.length] = old[:, :self.length]
+            self.inputs[i] = new
+
+
+def _step_attention_weights(mha: MultiHeadAttention) -> tuple:
+    """``mha``'s weights for :func:`_step_attention`: ``(q_w, q_b, w_k, w_v, out_w, out_b)``
+    with the query projection transposed and pre-scaled by ``1/sqrt(dh)``, ``w_k`` (H, dh, d)
+    and ``w_v`` (H, d, dh) per head, the output projection transposed and its bias absorbing
+    the value bias (``out(o + b_v) = o W_out^T + (b_v W_out^T + b_out)``; attention weights sum
+    to 1).  The key bias is dropped: it shifts every score of a head by ``q_h · b_k,h``, which
+    the softmax ignores."""
+    H, d = mha.n_heads, mha.d_model
+    dh = d // H
+    s = 1.0 / math.sqrt(dh)
+    return ((mha.q.weight * s).t().contiguous(), mha.q.bias * s,
+            mha.k.weight.view(H, dh, d).contiguous(),
+            mha.v.weight.view(H, dh, d).transpose(1, 2).contiguous(),
+            mha.out.weight.t().contiguous(), torch.addmv(mha.out.bias, mha.out.weight, mha.v.bias))
+
+
+def _step_attention(x, weights: tuple, inputs, bias=None) -> torch.Tensor:
+    """Multi-head attention (incl. the output projection) of one query row per item ``x`` (B, d)
+    over keys/values projected from ``inputs`` (B, L, d), computed without projecting them:
+    per head ``a = softmax((W_k,h^T q_h) · y_j + bias_j)`` and ``o_h = W_v,h Σ_j a_j y_j``
+    (``weights`` from :func:`_step_attention_weights`)."""
+    q_w, q_b, w_k, w_v, out_w, out_b = weights
+    B, d = x.shape
+    H = w_k.shape[0]
+    q = torch.addmm(q_b, x, q_w).view(B, H, -1).transpose(0, 1)       # (H, B, dh), scaled
+    qk = torch.bmm(q, w_k).transpose(0, 1)                              # (B, H, d)
+    keys = inputs.transpose(1, 2)
+    scores = torch.bmm(qk, keys) if bias is None else torch.baddbmm(bias, qk, keys)
+    ctx = torch.bmm(scores.softmax(-1), inputs).transpose(0, 1)         # (H, B, d)
+    o = torch.bmm(ctx, w_v).transpose(0, 1).reshape(B, d)               # (B, d)
+    return torch.addmm(out_b, o, out_w)
 
 
 class DecoderLayer(nn.Module):
@@ -184,15 +237,28 @@ class DecoderLayer(nn.Module):
         mk, mv = self.cross_attn.project_kv(memory)
         return self._tail(x, mk, mv, mem_padding_mask)
 
+    def step_weights(self) -> tuple:
+        """This layer's weights for :meth:`step`: the self- and cross-attention's
+        (:func:`_step_attention_weights`) and the feed-forward's ``(W1^T, b1, W2^T, b2)``
+        (contiguous transposed copies, for ``addmm`` without a per-call transpose); made once
+        per decoding pass."""
+        ff = self.ff
+        return (_step_attention_weights(self.self_attn), _step_attention_weights(self.cross_attn),
+                (ff.lin1.weight.t().contiguous(), ff.lin1.bias,
+                 ff.lin2.weight.t().contiguous(), ff.lin2.bias))
+
     def step(self, x, cache: DecoderCache, i: int):
-        """One new position ``x`` (B, 1, d) attending to the cached past and itself."""
-        k, v = self.self_attn.project_kv(x)
-        if cache.self_k[i] is not None:
-            k = torch.cat([cache.self_k[i], k], dim=-2)
-            v = torch.cat([cache.self_v[i], v], dim=-2)
-        cache.self_k[i], cache.self_v[i] = k, v
-        x = self.norm1(x + self.drop1(self.self_attn.attend(x, k, v)))
-        return self._tail(x, cache.mem_k[i], cache.mem_v[i], cache.mem_mask)
+        """One new position ``x`` (B, d) attending to the cached past and itself, then to the
+        memory (inference: no dropout): :meth:`forward` at one position.  Writes ``x`` at row
+        ``cache.length`` of layer ``i``'s inputs; :meth:`TransformerDecoder.step` advances the
+        length after the last layer."""
+        self_w, cross_w, (f1_w, f1_b, f2_w, f2_b) = cache.weights[i]
+        t = cache.length
+        inputs = cache.inputs[i]
+        inputs[:, t] = x
+        x = self.norm1(x + _step_attention(x, self_w, inputs[:, :t + 1]))
+        x = self.norm2(x + _step_attention(x, cross_w, cache.memory, cache.mem_bias))
+        return self.norm3(x + torch.addmm(f2_b, self.ff.act(torch.addmm(f1_b, x, f1_w)), f2_w))
 
 
 class TransformerDecoder(nn.Module):
@@ -211,18 +277,30 @@ class TransformerDecoder(nn.Module):
                       mem_padding_mask=mem_padding_mask)
         return x
 
-    def init_cache(self, memory: torch.Tensor, mem_padding_mask=None) -> DecoderCache:
-        """Project the memory's cross-attention keys/values once per layer."""
-        ks, vs = [], []
-        for layer in self.layers:
-            k, v = layer.cross_attn.project_kv(memory)
-            ks.append(k)
-            vs.append(v)
-        n = len(self.layers)
-        return DecoderCache(ks, vs, mem_padding_mask, [None] * n, [None] * n)
+    @torch.inference_mode()
+    def init_cache(self, memory: torch.Tensor, mem_padding_mask=None,
+                   max_len: int | None = None) -> DecoderCache:
+        """Everything a decoding pass reuses, made once: the memory (contiguous), per layer the
+        step weights (:meth:`DecoderLayer.step_weights`) and an input buffer for ``max_len``
+        steps (default: the memory's length; :meth:`step` grows them if a caller goes
+        further), the padding mask as an additive mask.  Inference only."""
+        B, Lk, d = memory.shape
+        cap = Lk if max_len is None else max(1, int(max_len))
+        bias = None
+        if mem_padding_mask is not None and bool(mem_padding_mask.any()):
+            bias = _padding_to_additive(mem_padding_mask, memory.dtype)[:, 0]
+        return DecoderCache(memory.contiguous(), bias,
+                            [layer.step_weights() for layer in self.layers],
+                            [memory.new_empty(B, cap, d) for _ in self.layers])
 
+    @torch.inference_mode()
     def step(self, x: torch.Tensor, cache: DecoderCache) -> torch.Tensor:
-        """Decode one position ``x`` (B, 1, d); appends its keys/values to ``cache``."""
+        """Decode one position ``x`` (B, 1, d); writes each layer's input into ``cache`` and
+        advances ``cache.length``.  Inference only (dropout off, no gradient)."""
+        cache.reserve(cache.length + 1)
+        B = x.shape[0]
+        x = x.reshape(B, -1)
         for i, layer in enumerate(self.layers):
             x = layer.step(x, cache, i)
-        return x
+        cache.length += 1
+        return x.view(B, 1, -1)

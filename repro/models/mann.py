@@ -379,7 +379,7 @@ class MANN(Generator):
                 pts, vel = f.window(path, rows, tt, K, lengths)
                 x = f.inputs(prev, world, world2, pts, vel, cond_items.labels[rows],
                              tt.float() / lengths[rows].float())
-                y = net.denormalise_y(net(net.normalise_x(x)))
+                y = net.denormalise_y(net(net.normalise_x(x.to(self.device)))).to(x.device)
                 rot6d = matrix_to_6d(sixd_to_matrix(y[:, :-3].reshape(-1, self.skeleton.n_joints, 6)))
                 pose = torch.cat([rot6d.reshape(rows.numel(), -1), prev[:, -3:] + y[:, -3:]], -1)
                 out[rows, t - 1] = pose

@@ -15,8 +15,8 @@ Network (Sec. 4.2.1, Fig. 3; widths from supp. Table 2, read in docs/marionet.md
   encoder; concatenated into the frame-level controls ``c_t ∈ R^d``.
 - **Motion Decoder**: a causal transformer decoder; query = embedded poses ``P_0..P_{T−1}``
   (+ positions), key/value = the controls; output ``P*_1..P*_T`` through ``pose_decode``.
-  ``P_0`` (the BOP) is the last initial pose.  Inference runs frame by frame with key/value
-  caching (:class:`repro.models.layers.DecoderCache`).
+  ``P_0`` (the BOP) is the last initial pose.  Inference runs frame by frame on a cache of
+  what the keys/values are projected from (:class:`repro.models.layers.DecoderCache`).
 
 Training (Sec. 4.2.2, supp. Sec. 3): ``L = λ1·L_Recon(P') + λ2·L_Recon(P'') + λ_KL·L_KL``
 (Eq. 2), ``L_Recon = λ_R·L_R + λ_D·L_D + λ_J·L_J`` (Eq. 1a), each term a per-frame squared
@@ -57,6 +57,7 @@ from repro.models.layers import TransformerDecoder, TransformerEncoder, sinusoid
 from repro.motion.motion import Motion
 from repro.motion.rotations import matrix_to_6d, sixd_to_matrix
 from repro.seeding import derive_seed, torch_generator
+from repro.train.loop import to_device
 from repro.train.schedules import linear_ramp
 
 
@@ -254,20 +255,32 @@ class MarioNetNet(nn.Module):
     def generate(self, bop, controls, lengths, *, use_cache: bool = True,
                  first_feature=None) -> torch.Tensor:
         """Frame-by-frame inference (Sec. 4.2.3): ``bop`` (B, P) → (B, T, P), T = controls'
-        length.  ``use_cache=False`` recomputes the full causal pass at every step."""
+        length.  ``use_cache=False`` recomputes the full causal pass at every step.
+
+        The cached path (inference only) allocates everything once per call: the decoder's
+        cache for ``T`` steps and its step weights (:meth:`TransformerDecoder.init_cache`),
+        the ``T`` positional encodings and the output; each step embeds the previous pose, runs
+        one token through the decoder and writes its pose in place.  It computes what
+        :meth:`_query` + the parallel causal pass compute, step by step."""
         T = controls.shape[1]
         pad = self.padding_mask(lengths, T)
-        outs = []
         if use_cache:
-            cache = self.decoder.init_cache(controls, pad)
-            prev = bop
-            for t in range(T):
-                ff = first_feature if t == 0 else None
-                x = self._query(prev[:, None], t, ff)
-                p = self.decode_poses(self.decoder.step(x, cache))[:, 0]
-                outs.append(p)
-                prev = p
-            return torch.stack(outs, dim=1)
+            with torch.inference_mode():
+                cache = self.decoder.init_cache(controls, pad, max_len=T)
+                pos = sinusoidal_encoding(torch.arange(T, device=controls.device),
+                                          self.cfg.d_model).to(controls.dtype)
+                out = controls.new_empty(bop.shape[0], T, self.pose_dim)
+                prev = bop
+                for t in range(T):
+                    if t == 0 and first_feature is not None:   # Shadow Start: replaces the BOP
+                        x = first_feature[:, None].to(controls.dtype)
+                    else:
+                        x = self.embed_poses(prev[:, None])
+                    p = self.decode_poses(self.decoder.step(x + pos[t], cache))[:, 0]
+                    out[:, t] = p
+                    prev = p
+                return out
+        outs = []
         seq = bop[:, None]
         for t in range(T):
             y = self.decoder(self._query(seq, 0, first_feature), controls, causal=True,
@@ -502,14 +515,14 @@ class MarioNet(Generator):
         out = torch.zeros(N, Tmax, net.pose_dim)
         for s in range(0, N, cfg.sample_batch_size):
             idx = torch.arange(s, min(N, s + cfg.sample_batch_size))
-            b = self._crop(data, idx)
+            b = to_device(self._crop(data, idx), self.device)
             mu, logvar, tag, _ = net.encode(b["init"], b["labels"], b["next_labels"])
-            z = mu if use_mean else mu + torch.exp(0.5 * logvar) * eps[idx]
+            z = mu if use_mean else mu + torch.exp(0.5 * logvar) * eps[idx].to(mu.device)
             ctrl = net.controls(z, tag, b["trajectory"], b["lengths"])
-            ff = None if first_feature is None else first_feature[idx]
+            ff = None if first_feature is None else first_feature[idx].to(mu.device)
             gen = net.generate(b["init"][:, -1], ctrl, b["lengths"], use_cache=use_cache,
                                first_feature=ff)
-            out[idx, :gen.shape[1]] = gen
+            out[idx, :gen.shape[1]] = gen.to(out.device)
         return out
 
     def finish(self, items: ActionItems, poses: torch.Tensor) -> GeneratedItems:
@@ -537,10 +550,10 @@ class MarioNet(Generator):
         out = torch.zeros(N, Tmax, net.pose_dim)
         for s in range(0, N, cfg.sample_batch_size):
             idx = torch.arange(s, min(N, s + cfg.sample_batch_size))
-            b = self._crop(data, idx)
+            b = to_device(self._crop(data, idx), self.device)
             mu, logvar, tag, _ = net.encode(b["init"], b["labels"], b["next_labels"])
-            z = mu if use_mean else mu + torch.exp(0.5 * logvar) * eps[idx]
+            z = mu if use_mean else mu + torch.exp(0.5 * logvar) * eps[idx].to(mu.device)
             ctrl = net.controls(z, tag, b["trajectory"], b["lengths"])
             gt_in = torch.cat([b["init"][:, -1:], b["target"][:, :-1]], dim=1)
-            out[idx, :ctrl.shape[1]] = net.decode(gt_in, ctrl, b["lengths"])
+            out[idx, :ctrl.shape[1]] = net.decode(gt_in, ctrl, b["lengths"]).to(out.device)
         return self._finish(items, out)

@@ -226,7 +226,8 @@ class _Composite(Generator):
         for name, m in self.models.items():
             m.save(d / name)
         tmp = d / f".{WEIGHTS_FILE}.{os.getpid()}.tmp"
-        torch.save({}, tmp)
+        with open(tmp, "wb") as fh:  # a handle: same bytes in every process
+            torch.save({}, fh)
         os.replace(tmp, d / WEIGHTS_FILE)
         meta = {"format": SAVE_FORMAT, "method_id": self.method_id,
                 "config": self.config.model_dump(mode="json"), "skeleton": self.skeleton.to_dict(),

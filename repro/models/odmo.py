@@ -89,6 +89,7 @@ from repro.errors import ConfigError, DataError
 from repro.models.base import Generator, GeneratorConfig, register
 from repro.models.odmo_nets import ODMONet, contrastive_loss, kl_term, squared_error
 from repro.seeding import derive_seed, numpy_rng
+from repro.train.loop import to_device
 
 _U32 = 2 ** 32
 #: windows per pair: per-window means × PAIR = per-pair sums (Eq. 1, footnote 1)
@@ -366,7 +367,7 @@ class ODMO(Generator):
         x = torch.as_tensor(np.asarray(batch_joints, np.float32))
         self.net.eval()
         bs = self.config.sample_batch_size
-        out = [self.net.encode(x[s:s + bs])[0] for s in range(0, x.shape[0], bs)]
+        out = [self.net.encode(x[s:s + bs].to(self.device))[0].cpu() for s in range(0, x.shape[0], bs)]
         return torch.cat(out).double().numpy() if out else np.zeros((0, self.config.latent_dim))
 
     def bank(self, pool: WindowItems, *, n_iter: int, seed: int) -> Bank:
@@ -445,8 +446,8 @@ class ODMO(Generator):
         bs, J = self.config.sample_batch_size, self.skeleton.n_joints
         out = torch.zeros(z.shape[0], int(n_frames), J, 3)
         for s in range(0, z.shape[0], bs):
-            out[s:s + bs] = self.net.generate(z[s:s + bs], lab[s:s + bs], e[s:s + bs],
-                                              int(n_frames))[2]
+            out[s:s + bs] = self.net.generate(*to_device((z[s:s + bs], lab[s:s + bs], e[s:s + bs]),
+                                                         self.device), int(n_frames))[2].cpu()
         return out
 
     def sample_windows(self, labels, n_frames: int, *, seed: int, pool: WindowItems | None = None,

@@ -117,6 +117,7 @@ class MotionGenerator(nn.Module):
             if target is None:
                 raise ValueError("teacher forcing needs the target poses")
             use_real = torch.rand(T) < tf if tf < 1.0 else torch.ones(T, dtype=torch.bool)
+            use_real = use_real.tolist()  # read once, not one tensor read per frame
         prev = traj.new_zeros(N, self.pose_dim)
         outs = []
         for t in range(T):
@@ -124,7 +125,7 @@ class MotionGenerator(nn.Module):
             h, state = self.dec_lstm(x[:, None], state)
             pose = self.out(h[:, 0])
             outs.append(pose)
-            prev = target[:, t] if use_real is not None and bool(use_real[t]) else pose
+            prev = target[:, t] if use_real is not None and use_real[t] else pose
         return torch.stack(outs, dim=1)
 
 

@@ -12,7 +12,10 @@ overrides both), the replicate count and seed base, bootstrap resamples, per-pro
 computes with (fixed, so that a job's bytes do not depend on ``--jobs`` or on the machine's core
 count: the count changes float reductions, hence trained weights), the ``validation_fraction``
 of the training clips held out to draw each trained model's validation curve
-(:mod:`repro.train.validation`), evaluator settings (validated by
+(:mod:`repro.train.validation`), the ``device`` its jobs train and sample on (``"cpu"``,
+``"cuda"`` or ``"cuda:N"``; ``--device`` overrides it for one command through
+:func:`device_override`; a CUDA device enters every job key with the CUDA determinism settings,
+:func:`repro.seeding.device_key`), evaluator settings (validated by
 :mod:`repro.eval.settings`) and one free table per method (``[quick.methods.marionet]``) whose
 keys the method modules validate themselves.
 
@@ -23,6 +26,9 @@ is the content key of everything it holds.
 from __future__ import annotations
 
 import json
+import re
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Union
@@ -37,6 +43,18 @@ from repro.specs import names
 from repro.specs.schema import DatasetName
 
 SCALE_NAMES = ("quick", "medium", "paper")
+
+#: the devices a profile (or ``--device``) may name: the CPU, or a CUDA card (``cuda:N`` picks
+#: the card; the key holds the device type only, as placement does not change a result)
+DEVICE_PATTERN = re.compile(r"cpu|cuda(:[0-9]+)?")
+DEVICE_CHOICES = "cpu, cuda or cuda:N"
+
+
+def device_problem(device: object) -> str | None:
+    """Why ``device`` is not a device name this harness computes on (None when it is one)."""
+    if isinstance(device, str) and DEVICE_PATTERN.fullmatch(device):
+        return None
+    return f"unknown device {device!r} (choose from {DEVICE_CHOICES})"
 
 Scalar = Union[StrictBool, StrictInt, StrictFloat, StrictStr]
 # Evaluator and method tables may nest one or two levels ([paper.evaluator.train]).
@@ -61,9 +79,20 @@ class ScaleProfile(BaseModel):
         "share of each class's training clips held out (by clip, seeded) to draw every trained "
         "model's validation curve; never used to select anything; 0 = train on every training "
         "clip, as the papers do (repro/train/validation.py)"))
+    device: str = Field("cpu", description=(
+        "where the profile's train and generate jobs compute: cpu, cuda or cuda:N (--device "
+        "overrides it); a CUDA device enters every job key with its determinism settings"))
     protocols: dict[str, dict[str, Value]] = Field(default_factory=dict)
     evaluator: dict[str, Value] = Field(default_factory=dict)
     methods: dict[str, dict[str, Value]] = Field(default_factory=dict)
+
+    @field_validator("device")
+    @classmethod
+    def _known_device(cls, v: str):
+        problem = device_problem(v)
+        if problem is not None:
+            raise ValueError(problem)
+        return v
 
     @field_validator("protocols")
     @classmethod
@@ -115,6 +144,8 @@ class ResolvedScale:
     _payload: bytes  # canonical JSON of protocols / evaluator / methods
     #: share of each class's training clips held out for the validation curve (0: none)
     validation_fraction: float = 0.0
+    #: where train and generate jobs compute ("cpu", "cuda", "cuda:N")
+    device: str = "cpu"
 
     # -- the free tables, as fresh plain dicts ---------------------------------------------
 
@@ -168,13 +199,18 @@ class ResolvedScale:
     # -- identity ----------------------------------------------------------------------------
 
     def to_dict(self) -> dict[str, Any]:
-        return {
+        """Everything the profile holds; ``device`` only when it is not the CPU (so a CPU
+        profile's hash is what it was before profiles named a device)."""
+        out = {
             "name": self.name, "version": self.version, "dataset": self.dataset,
             "replicates": self.replicates, "seed_base": self.seed_base,
             "bootstrap_resamples": self.bootstrap_resamples, "threads": self.threads,
             "validation_fraction": self.validation_fraction,
             **json.loads(self._payload),
         }
+        if self.device != "cpu":
+            out["device"] = self.device
+        return out
 
     @property
     def scale_hash(self) -> str:
@@ -198,9 +234,60 @@ def load_scales(path: str | Path | None = None) -> ScaleFile:
         raise SpecValidationError(_problems_from_validation(e, data, ScaleFile, shown), shown) from None
 
 
-def resolve_scale(name: str, dataset: str | None = None, *, path: str | Path | None = None) -> ResolvedScale:
+#: ``--device`` of the running command (None: each profile's own device)
+_DEVICE_OVERRIDE: ContextVar[str | None] = ContextVar("repro_device_override", default=None)
+
+
+@contextmanager
+def device_override(device: str | None):
+    """Within the block, :func:`resolve_scale` gives every profile ``device`` instead of its
+    own (``--device``; None leaves the profiles' devices).  A bad name is a ConfigError naming
+    the option."""
+    if device is not None and device_problem(device) is not None:
+        raise ConfigError(f"--device: {device_problem(device)}")
+    token = _DEVICE_OVERRIDE.set(device)
+    try:
+        yield
+    finally:
+        _DEVICE_OVERRIDE.reset(token)
+
+
+def require_device(scale: ResolvedScale) -> str:
+    """``scale.device`` when this machine can compute on it; else a ConfigError (exit 2) that
+    says which profile asked for it and how to run on the CPU instead.  Called before a command
+    computes anything (planning never needs the device)."""
+    if scale.device == "cpu":
+        return "cpu"
+    import torch
+
+    src = Path(scale.source)
+    origin = ("--device" if _DEVICE_OVERRIDE.get() is not None
+              else f"{src.parent.name}/{src.name} [{scale.name}] device")
+    if not torch.cuda.is_available():
+        raise ConfigError(f"scale {scale.name!r} computes on {scale.device!r} ({origin}) but "
+                          "torch.cuda.is_available() is false on this machine (a CPU build of "
+                          "torch, or no GPU); pass --device cpu to compute on the CPU")
+    index = torch.device(scale.device).index
+    if index is not None and index >= torch.cuda.device_count():
+        raise ConfigError(f"scale {scale.name!r} computes on {scale.device!r} ({origin}) but "
+                          f"this machine has {torch.cuda.device_count()} CUDA device(s)")
+    return scale.device
+
+
+def gpus_per_job(scale: ResolvedScale) -> int:
+    """How many GPUs one of the profile's jobs asks a scheduler for (Ray's ``num_gpus``): one
+    on a CUDA device (a job trains one model on one card), none on the CPU."""
+    return 0 if scale.device == "cpu" else 1
+
+
+def resolve_scale(name: str, dataset: str | None = None, *, path: str | Path | None = None,
+                  device: str | None = None) -> ResolvedScale:
     """The frozen profile ``name`` (quick | medium | paper), with ``dataset`` (``--dataset``)
-    overriding the profile's default data set."""
+    overriding the profile's default data set and ``device`` (else the running command's
+    :func:`device_override`, else the profile's own) its device.  Resolving never checks that
+    the device exists here (:func:`require_device` does, before work)."""
+    if device is not None and device_problem(device) is not None:
+        raise ConfigError(f"device: {device_problem(device)}")
     if name not in SCALE_NAMES:
         raise ConfigError(f"unknown scale {name!r}{names.suggest(name, SCALE_NAMES)} "
                           f"(choose from {', '.join(SCALE_NAMES)})")
@@ -220,8 +307,10 @@ def resolve_scale(name: str, dataset: str | None = None, *, path: str | Path | N
         dataset=dataset or prof.dataset, replicates=prof.replicates, seed_base=prof.seed_base,
         bootstrap_resamples=prof.bootstrap_resamples, threads=prof.threads, source=str(path),
         _payload=payload, validation_fraction=float(prof.validation_fraction),
+        device=device or _DEVICE_OVERRIDE.get() or prof.device,
     )
 
 
-__all__ = ["SCALE_NAMES", "ScaleProfile", "ScaleFile", "ResolvedScale", "load_scales",
-           "resolve_scale", "scales_path"]
+__all__ = ["SCALE_NAMES", "ScaleProfile", "ScaleFile", "ResolvedScale", "device_override",
+           "device_problem", "gpus_per_job", "load_scales", "require_device", "resolve_scale",
+           "scales_path"]

@@ -30,6 +30,8 @@ from __future__ import annotations
 import json
 import math
 import time
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable
@@ -40,6 +42,54 @@ from repro.store.atomic import atomic_write_bytes
 
 CHECKPOINT = "checkpoint.pt"
 CONFIG = "config.json"
+
+
+#: the device :func:`train` computes on when its caller names none (set by :func:`use_device`)
+_DEVICE: ContextVar[str | None] = ContextVar("repro_train_device", default=None)
+
+
+@contextmanager
+def use_device(device):
+    """Within the block, :func:`train` computes on ``device`` (a name or ``torch.device``; None
+    = the CPU) unless its caller passes one.  A job sets it around a generator's ``fit`` so
+    that every model, whichever way it calls the loop, trains on the job's device."""
+    token = _DEVICE.set(None if device is None else str(device))
+    try:
+        yield
+    finally:
+        _DEVICE.reset(token)
+
+
+def current_device() -> str:
+    """The device :func:`train` uses by default here: :func:`use_device`'s, else ``"cpu"``."""
+    return _DEVICE.get() or "cpu"
+
+
+def to_device(obj: Any, device) -> Any:
+    """``obj`` with every tensor inside it (dicts, lists, tuples, nested) on ``device``;
+    other values as they are.  A tensor already there is returned itself (no copy)."""
+    if hasattr(obj, "to") and hasattr(obj, "device") and hasattr(obj, "dtype"):
+        return obj.to(device)
+    if isinstance(obj, dict):
+        out = type(obj)((k, to_device(v, device)) for k, v in obj.items())
+        if hasattr(obj, "_metadata"):  # a state_dict's module versions
+            out._metadata = obj._metadata
+        return out
+    if isinstance(obj, (list, tuple)) and not hasattr(obj, "_fields"):
+        return type(obj)(to_device(v, device) for v in obj)
+    return obj
+
+
+def module_device(module):
+    """The device of ``module``'s first parameter or buffer (the CPU for an empty module):
+    where sampling code puts the tensors it makes."""
+    import torch
+
+    for t in module.parameters():
+        return t.device
+    for t in module.buffers():
+        return t.device
+    return torch.device("cpu")
 
 
 @dataclass
@@ -75,6 +125,7 @@ def train(
     on_epoch: Callable[[int, dict[str, float]], None] | None = None,
     scheduler=None,
     validate: Callable[[Any, int], dict[str, float]] | None = None,
+    device=None,
 ) -> TrainResult:
     """Train ``model`` for ``epochs`` epochs (see module docstring); returns the loss history.
 
@@ -82,10 +133,15 @@ def train(
     checkpoint and guards resumption.  ``checkpoint_every`` is in epochs (the last epoch is
     always checkpointed).  ``grad_clip`` clips the global gradient norm.  ``validate(model,
     epoch)`` returns scalars measured on held-out data after each epoch (stored as ``val_*``;
-    it must not change the model); ``on_epoch`` sees the record with them.
+    it must not change the model); ``on_epoch`` sees the record with them.  ``device``: where
+    to compute (default :func:`current_device`); the model is left there.
     """
     import torch
 
+    dev = torch.device(current_device() if device is None else str(device))
+    on_cpu = dev.type == "cpu"
+    if not on_cpu:  # before resuming: the optimiser's state is then loaded onto the device
+        model.to(dev)
     t0 = time.perf_counter()
     cfg_key = content_key(config)
     start_epoch, resumed_from, history = 0, None, []
@@ -116,9 +172,11 @@ def train(
         torch.manual_seed(derive_seed(seed, "epoch", epoch))
         gen = torch_generator(seed, "batches", epoch)
         model.train()
-        sums: dict[str, float] = {}
+        logged: dict[str, list] = {}   # each scalar's per-step values, converted at the end
         n = 0
         for batch in batches(epoch, gen):
+            if not on_cpu:
+                batch = to_device(batch, dev)
             out = step(model, batch, epoch)
             loss = out["loss"]
             if not torch.isfinite(loss):
@@ -128,12 +186,12 @@ def train(
             if grad_clip is not None:
                 torch.nn.utils.clip_grad_norm_(model.parameters(), grad_clip)
             optimizer.step()
-            for k, v in out.items():
-                sums[k] = sums.get(k, 0.0) + float(v.detach() if hasattr(v, "detach") else v)
+            for k, v in out.items():  # a copy: the step's tensor may alias a parameter
+                logged.setdefault(k, []).append(v.detach().clone() if hasattr(v, "detach") else v)
             n += 1
         if scheduler is not None:
             scheduler.step()
-        rec = {k: v / max(n, 1) for k, v in sums.items()}
+        rec = {k: _float_sum(vs) / max(n, 1) for k, vs in logged.items()}
         rec["epoch"] = epoch
         rec["batches"] = n
         if validate is not None:
@@ -143,19 +201,35 @@ def train(
             on_epoch(epoch, rec)
         last = epoch == epochs - 1
         if ckpt_path is not None and (last or (epoch + 1) % max(checkpoint_every, 1) == 0):
-            _atomic_torch_save(
-                {
-                    "model": model.state_dict(),
-                    "optimizer": optimizer.state_dict(),
-                    "scheduler": None if scheduler is None else scheduler.state_dict(),
-                    "epoch": epoch,
-                    "history": json.dumps(history),
-                },
-                ckpt_path,
-            )
+            state = {
+                "model": model.state_dict(),
+                "optimizer": optimizer.state_dict(),
+                "scheduler": None if scheduler is None else scheduler.state_dict(),
+                "epoch": epoch,
+                "history": json.dumps(history),
+            }
+            _atomic_torch_save(state if on_cpu else to_device(state, "cpu"), ckpt_path)
     model.eval()
     return TrainResult(epochs=epochs, resumed_from=resumed_from, history=history,
                        seconds=time.perf_counter() - t0)
+
+
+def _float_sum(values: list) -> float:
+    """The Python-float sum, in step order, of one logged scalar's values over an epoch (0-d
+    tensors or numbers): what adding ``float(v)`` after every step gives, bitwise, with one
+    host transfer for all the tensors instead of one per value and step (on an accelerator
+    each ``float`` waits for the device)."""
+    import torch
+
+    tensors = [v for v in values if isinstance(v, torch.Tensor)]
+    if len({(t.dtype, t.device) for t in tensors}) == 1:  # one transfer, no type promotion
+        floats = iter(torch.stack([t.reshape(()) for t in tensors]).tolist())
+    else:
+        floats = iter([float(t) for t in tensors])
+    total = 0.0
+    for v in values:
+        total += next(floats) if isinstance(v, torch.Tensor) else float(v)
+    return total
 
 
 def _validation(model, validate, seed: int, epoch: int) -> dict[str, float]:
