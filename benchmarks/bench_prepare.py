@@ -1,8 +1,8 @@
 """Benchmark of `repro data prepare bandai2` (not a timed test; figures go to docs/data.md).
 
 Measures, on this machine and in one run, this working tree ("after") against the code of a
-pinned earlier commit ("before", :data:`BEFORE`, unpacked with ``git archive`` into a temporary
-folder; the library itself keeps one parser):
+pinned earlier commit ("before", :data:`BEFORE`, unpacked from git history into a temporary
+folder by ``benchmarks/_before.py``; the library itself keeps one parser):
 
 1. cold prepare of all 2,902 clips from the archive into a fresh REPRO_HOME, before and after,
    each in its own process with ``--workers`` parser workers (wall time of the
@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import hashlib
-import importlib.util
 import json
 import os
 import platform
@@ -37,6 +36,10 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _before import BeforeUnavailable, load_module, tree_at  # after the path entry
 
 #: The "before" code: the last commit before the BVH reader's issue-17 speed-ups.
 BEFORE = "4b3830acd23621ac745fb0b587599a3a5f9acb15"
@@ -92,37 +95,21 @@ class PeakSampler:
 
 
 def unpack_before(commit: str) -> Path | None:
-    """A temporary folder holding ``repro/`` as it was at ``commit`` (None without git or the
-    commit: the "before" figures are then left out)."""
-    tmp = Path(tempfile.mkdtemp(prefix="bench-before-"))
+    """A temporary folder holding ``repro/`` as it was at ``commit`` (:func:`_before.tree_at`;
+    None without git or the commit: the "before" figures are then left out)."""
     try:
-        tar = subprocess.run(["git", "-C", str(REPO), "archive", "--format=tar", commit, "repro"],
-                             check=True, capture_output=True).stdout
-    except (OSError, subprocess.CalledProcessError) as e:
+        return tree_at(commit)
+    except BeforeUnavailable as e:
         print(f"bench_prepare: no 'before' code ({commit[:12]}: {e}); after figures only",
               file=sys.stderr)
-        shutil.rmtree(tmp, ignore_errors=True)
         return None
-    import io
-
-    with tarfile.open(fileobj=io.BytesIO(tar)) as tf:
-        tf.extractall(tmp, filter="data")
-    return tmp
-
-
-def load_module(path: Path, name: str):
-    """Import the module file ``path`` under ``name`` (the "before" parser beside ours)."""
-    spec = importlib.util.spec_from_file_location(name, path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[name] = mod  # dataclasses look their module up there
-    spec.loader.exec_module(mod)
-    return mod
 
 
 # Run in a child process whose ``repro`` is the code under test (PYTHONPATH), so that the
 # prepare's spawned workers import the same code; prints one JSON line.
 _PREPARE_CHILD = """
 import json, os, resource, sys, time
+import repro
 from repro.data.bandai import load_bandai2, prepare_bandai2
 t0 = time.perf_counter()
 res = prepare_bandai2(sys.argv[1], workers=int(sys.argv[2]))
@@ -131,6 +118,7 @@ me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource
 t0 = time.perf_counter(); cs = load_bandai2(); warm_open = time.perf_counter() - t0
 t0 = time.perf_counter(); cs = load_bandai2(mmap=False); warm_read = time.perf_counter() - t0
 print(json.dumps({"cold_prepare_s": cold, "timings": res.timings, "path": str(res.path),
+                  "code": repro.__file__,
                   "cpu_s": me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime,
                   "warm_load_mmap_s": warm_open, "warm_load_in_ram_s": warm_read,
                   "clips": len(cs), "frames": cs.n_frames}))
@@ -175,7 +163,10 @@ def prepare_once(source: Path, workers: int, code_root: Path) -> tuple[dict, Pat
     env = {**os.environ, "REPRO_HOME": str(home),
            "PYTHONPATH": os.pathsep.join([str(code_root), os.environ.get("PYTHONPATH", "")])}
     t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-c", _PREPARE_CHILD, str(source), str(workers)],
+    # -P: ``-c`` would otherwise put the working directory first on sys.path, ahead of
+    # PYTHONPATH, and run from the repository root the "before" child would import today's repro
+    proc = subprocess.Popen([sys.executable, "-P", "-c", _PREPARE_CHILD, str(source),
+                             str(workers)],
                             env=env, stdout=subprocess.PIPE, text=True)
     with PeakSampler(pid=proc.pid) as ps:
         out, _ = proc.communicate()
@@ -185,6 +176,10 @@ def prepare_once(source: Path, workers: int, code_root: Path) -> tuple[dict, Pat
                          f"(exit {proc.returncode})")
     r = json.loads(out.strip().splitlines()[-1])
     path = Path(r.pop("path"))
+    if not Path(r.pop("code")).resolve().is_relative_to(code_root.resolve()):
+        shutil.rmtree(path.parents[2], ignore_errors=True)
+        raise SystemExit(f"bench_prepare: the child meant to run the repro under {code_root} "
+                         "imported another one")
     res = {"cold_prepare_s": round(r["cold_prepare_s"], 2),
            "process_wall_s": round(wall, 2),
            "cpu_s": round(r["cpu_s"], 1),
@@ -354,15 +349,11 @@ def main(argv: list[str] | None = None) -> int:
         print("bench_prepare: the Bandai-Namco-2 archive was not found; pass --source", file=sys.stderr)
         return 2
     result = {"machine": machine(), "source": str(source), "before_commit": args.before or None}
-    before_root = unpack_before(args.before) if args.before else None
-    try:
-        if not args.skip_prepare:
-            result["prepare"] = bench_prepare(Path(source), args.workers, before_root)
-        result["parse_vs_bvhio"] = bench_parse(Path(source), args.parse_files, args.rounds,
-                                               before_root)
-    finally:
-        if before_root is not None:
-            shutil.rmtree(before_root, ignore_errors=True)
+    before_root = unpack_before(args.before) if args.before else None  # removed at exit
+    if not args.skip_prepare:
+        result["prepare"] = bench_prepare(Path(source), args.workers, before_root)
+    result["parse_vs_bvhio"] = bench_parse(Path(source), args.parse_files, args.rounds,
+                                           before_root)
     result["machine"]["load_avg_at_end"] = os.getloadavg()
     text = json.dumps(result, indent=1)
     print(text)

@@ -107,6 +107,87 @@ def test_cached_sampler_matches_uncached_and_teacher_forcing(clips, items):
     assert torch.allclose(s1.joints(), s2.joints(), atol=1e-5)
 
 
+def _bench_kv_cache():
+    """benchmarks/bench_kv_cache.py (its path entry removed again once imported); skips when
+    the git history holding its "before" commit is missing (a tarball, a shallow clone)."""
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    bench_dir = Path(__file__).resolve().parents[1] / "benchmarks"
+    spec = importlib.util.spec_from_file_location("bench_kv_cache", bench_dir / "bench_kv_cache.py")
+    mod = importlib.util.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(mod)
+    finally:
+        while str(bench_dir) in sys.path:
+            sys.path.remove(str(bench_dir))
+    try:
+        mod.old_cached_sampler()
+    except sys.modules["_before"].BeforeUnavailable as e:
+        pytest.skip(f"no 'before' sampler to compare with: {e}")
+    return mod
+
+
+def test_cached_sampler_matches_the_pre_issue17_sampler(clips, items):
+    """Issue 17: the preallocated, fused cached sampler gives the old cached sampler's poses
+    (and the uncached ones) to 1e-5, with padded items and with Shadow Start's first feature;
+    sampling leaves the parameters as they were."""
+    from repro.models.marionet import MarioNetNet
+
+    bench = _bench_kv_cache()
+    library_generate = MarioNetNet.generate
+    m = model(clips, dec_layers=3, sample_batch_size=32)
+    assert len(set(items.lengths.tolist())) > 1            # padded memory keys are exercised
+    state = {k: v.clone() for k, v in m.network.state_dict().items()}
+    new = m.generate_poses(items, seed=5)
+    ff = torch.randn(len(items), TINY["d_model"], generator=torch.Generator().manual_seed(1))
+    new_ff = m.generate_poses(items, seed=5, first_feature=ff)
+    with bench.old_cached_sampler():
+        assert MarioNetNet.generate is not library_generate
+        old = m.generate_poses(items, seed=5)
+        old_ff = m.generate_poses(items, seed=5, first_feature=ff)
+    full = m.generate_poses(items, seed=5, use_cache=False)
+    assert MarioNetNet.generate is library_generate          # the swap is undone
+    assert generator_class("marionet") is MarioNet           # importing the old one left it
+    assert (new - old).abs().max() <= 1e-5 and (new - full).abs().max() <= 1e-5
+    assert (new_ff - old_ff).abs().max() <= 1e-5
+    assert not torch.allclose(new_ff, new, atol=1e-3)       # the first feature is used
+    after = m.network.state_dict()
+    assert after.keys() == state.keys()
+    assert all(torch.equal(after[k], v) for k, v in state.items())
+
+
+def test_decoder_cache_is_written_in_place():
+    """The per-layer input buffers are allocated once for ``max_len`` steps: steps within it
+    write in place (same storage), a step past it grows the buffers and keeps the filled
+    prefix."""
+    torch.manual_seed(0)
+    dec = TransformerDecoder(2, 16, 4, 32, 0.0, "relu").eval()
+    x, mem = torch.randn(2, 6, 16), torch.randn(2, 5, 16)
+    full = dec(x, mem, causal=True)
+    cache = dec.init_cache(mem, max_len=4)
+    ptrs = [b.data_ptr() for b in cache.inputs]
+    outs = [dec.step(x[:, t:t + 1], cache) for t in range(4)]
+    assert cache.length == 4 and cache.capacity == 4
+    assert [b.data_ptr() for b in cache.inputs] == ptrs
+    outs += [dec.step(x[:, t:t + 1], cache) for t in range(4, 6)]
+    assert cache.length == 6 and cache.capacity >= 6
+    assert torch.allclose(torch.cat(outs, 1), full, atol=1e-5)
+
+
+def test_kv_cache_benchmark_runs_and_agrees(capsys):
+    """benchmarks/bench_kv_cache.py at a tiny size: before/after/uncached in one run, the chain
+    figure, outputs equal to 1e-5 (the speed target is not checked at this size)."""
+    mod = _bench_kv_cache()
+    mod.main(["--batch", "2", "--frames", "3", "--repeats", "1", "--chain-actions", "2",
+              "--json"])
+    res = json.loads(capsys.readouterr().out)
+    assert res["max_abs_diff_poses"] <= 1e-5 and res["max_abs_diff_poses_vs_before"] <= 1e-5
+    assert res["chain_actions"] == 2 and res["chain_after_fps"] > 0 and res["chain_frames"] > 0
+    assert {"before_s", "cached_s", "uncached_s", "speedup", "speedup_before"} <= res.keys()
+
+
 # -- ablation switches -------------------------------------------------------------------------
 
 

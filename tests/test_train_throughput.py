@@ -1,0 +1,192 @@
+"""Issue 17 item 1: the training-throughput changes compute bitwise what the code before them
+computed.  Each changed path is compared with the same path as it was at the commit before the
+change (``bench_train_throughput.BEFORE``, imported from git history by
+``benchmarks/_before.py``): same seed, same data, then the per-epoch history compared with
+``==`` and every weight with ``torch.equal``.  Without that history (a source tarball, a
+shallow clone) the comparisons skip, saying so."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from model_fixtures import clips, items, one_torch_thread  # noqa: F401 (fixtures)
+
+from repro.data.odmo_items import WindowSource
+from repro.data.registry import load_clipset
+from repro.models.a2m import A2M
+from repro.models.odmo import ODMO
+from repro.train.loop import _float_sum, train
+
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+@pytest.fixture(scope="module")
+def bench():
+    """benchmarks/bench_train_throughput.py (its path entries removed again once imported)."""
+    spec = importlib.util.spec_from_file_location("bench_train_throughput",
+                                                  BENCH / "bench_train_throughput.py")
+    mod = importlib.util.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(mod)
+    finally:
+        for p in (str(BENCH), str(BENCH.parent)):
+            while p in sys.path:
+                sys.path.remove(p)
+    return mod
+
+
+@pytest.fixture(scope="module")
+def ref(bench):
+    """The training paths before issue 17: ``ref.paths()`` swaps them in, ``ref.train`` is the
+    old loop (skips without the git history holding the commit)."""
+    import types
+
+    before = sys.modules["_before"]
+    try:
+        bench.before_paths()
+        old_loop = before.import_before(bench.BEFORE, "repro/train/loop.py")
+    except before.BeforeUnavailable as e:
+        pytest.skip(f"no 'before' code to compare with: {e}")
+    return types.SimpleNamespace(paths=bench.before_paths, train=old_loop.train)
+
+
+def _weights(module) -> list[torch.Tensor]:
+    return [t.detach().clone() for t in module.state_dict().values()]
+
+
+def _same(a: list[torch.Tensor], b: list[torch.Tensor]) -> bool:
+    return len(a) == len(b) and all(torch.equal(x, y) for x, y in zip(a, b))
+
+
+def _assert_fits_alike(ref, make, train_items, seed: int) -> None:
+    """``make()``'s generator fitted on ``train_items`` through the pre-issue-17 paths and through
+    the library's: the same history (``==``) and the same weights (``torch.equal``)."""
+    import contextlib
+
+    runs = []
+    for ctx in (ref.paths(), contextlib.nullcontext()):
+        gen = make()
+        with ctx:
+            res = gen.fit(train_items, seed=seed)
+        runs.append((res.history, _weights(gen.network)))
+    assert runs[1][0] == runs[0][0]
+    assert _same(runs[1][1], runs[0][1])
+
+
+def _toy():
+    torch.manual_seed(5)
+    model = torch.nn.Sequential(torch.nn.Linear(4, 16), torch.nn.Dropout(0.3),
+                                torch.nn.Linear(16, 1))
+    opt = torch.optim.Adam(model.parameters(), lr=1e-2)
+    X = torch.linspace(-1, 1, 48 * 4).reshape(48, 4)
+    y = X.sin().sum(1, keepdim=True)
+
+    def batches(epoch, gen):
+        perm = torch.randperm(48, generator=gen)
+        for i in range(0, 48, 10):  # a short last batch
+            yield X[perm[i:i + 10]], y[perm[i:i + 10]]
+
+    def step(m, batch, epoch):
+        xb, yb = batch
+        loss = torch.nn.functional.mse_loss(m(xb), yb)
+        # every kind of logged scalar: float32, float64, int tensors, Python numbers, and a
+        # view of a parameter that the optimiser step changes in place afterwards
+        return {"loss": loss, "f64": loss.detach().double() / 3, "count": torch.tensor(len(xb)),
+                "epoch_f": float(epoch) / 7, "n": len(xb), "bias0": m[2].bias.detach()[0]}
+
+    return model, opt, batches, step
+
+
+def test_loop_history_and_weights_equal_the_pre_issue17_loop(ref, tmp_path):
+    """The loop's logged scalars are converted once per epoch instead of after every step:
+    the history (with validation) and the weights are bitwise the old loop's."""
+    runs = []
+    for fn, sub in ((ref.train, "old"), (train, "new")):
+        model, opt, batches, step = _toy()
+        res = fn(model, opt, batches=batches, step=step, epochs=3, seed=4, config={"toy": 1},
+                 ckpt_dir=tmp_path / sub,
+                 validate=lambda m, e: {"loss": m(torch.ones(3, 4)).mean()})
+        runs.append((res.history, _weights(model)))
+    (h_old, w_old), (h_new, w_new) = runs
+    assert h_new == h_old and list(h_new[0]) == list(h_old[0])  # values and key order
+    assert _same(w_new, w_old)
+
+
+def test_float_sum_is_the_stepwise_python_sum():
+    vals = [torch.tensor(0.1), torch.tensor(1e-8), torch.tensor(3.3), torch.tensor(2.0),
+            torch.tensor(1e8)]
+    stepwise = 0.0
+    for v in vals:
+        stepwise += float(v)
+    assert _float_sum(vals) == stepwise
+    mixed = [torch.tensor(0.1), 2, torch.tensor(0.2, dtype=torch.float64), 0.5,
+             torch.tensor(7)]
+    assert _float_sum(mixed) == ((((0.0 + float(mixed[0])) + 2) + float(mixed[2])) + 0.5) + 7
+    assert _float_sum([]) == 0.0
+
+
+@pytest.mark.parametrize("time_counter", [True, False])
+def test_a2m_conditions_equal_the_per_frame_condition(clips, time_counter):  # noqa: F811
+    net = A2M({"dim_z": 4, "hidden": 8, "time_counter": time_counter}, clips.skeleton,
+              clips.n_classes, clips.fps).network
+    lengths = torch.tensor([1, 2, 17, 60, 121, 33])
+    onehot = torch.nn.functional.one_hot(torch.arange(6) % clips.n_classes,
+                                         clips.n_classes).float()
+    T = int(lengths.max())
+    per_frame = torch.stack([net.condition(onehot, t, lengths) for t in range(T)], 1)
+    assert torch.equal(net.conditions(onehot, T, lengths), per_frame)
+
+
+@pytest.mark.parametrize("over", [{}, {"time_counter": False, "self_feed_ratio": 1.0}])
+def test_a2m_training_equals_the_pre_issue17_step(ref, clips, items, over):  # noqa: F811
+    """Action2Motion's step with its conditions built once per batch: same history, same
+    weights as the per-frame condition of the old step (through the old loop)."""
+    cfg = {"dim_z": 4, "hidden": 16, "batch_size": 8, "epochs": 2, "lr": 3e-3, **over}
+    _assert_fits_alike(ref, lambda: A2M(cfg, clips.skeleton, clips.n_classes, clips.fps),
+                       items, seed=2)
+
+
+def test_odmo_training_equals_the_pre_issue17_decoder(ref):
+    """ODMO's motion decoder reading its teacher-forcing draw once per batch: same history
+    and weights; epoch 1's ratio lies strictly between 0 and 1, so the draw is exercised."""
+    windows = WindowSource(window=20).train_items(load_clipset("bandai2-mini"))
+    cfg = {"reduction": "sum", "enc_hidden": 16, "enc_feature": 16, "embed": 16, "hidden": 16,
+           "epochs": 2, "windows_per_epoch": 32, "batch_size": 16, "tf_decay_epochs": 2}
+    make = lambda: ODMO(cfg, windows.skeleton, windows.n_classes, windows.fps)
+    assert 0.0 < make().teacher_forcing(1) < 1.0
+    _assert_fits_alike(ref, make, windows, seed=1)
+
+
+def test_before_paths_are_the_old_code_and_restore_the_library(ref):
+    """Within the block the three paths are the old commit's (its loop has no ``device``
+    argument yet, its A2M step no per-batch conditions); after it, the library's again; the
+    generator registry still holds today's A2M."""
+    import inspect
+
+    from repro.models.base import generator_class
+    from repro.models.odmo_nets import MotionGenerator
+    from repro.train import loop
+
+    saved = (loop.train, A2M.training_step, MotionGenerator.forward)
+    with ref.paths():
+        now = (loop.train, A2M.training_step, MotionGenerator.forward)
+        assert all(x is not y for x, y in zip(now, saved))
+        assert loop.train is ref.train and "device" not in inspect.signature(loop.train).parameters
+        assert "conditions(" not in inspect.getsource(A2M.training_step)
+        assert ".tolist()" not in inspect.getsource(MotionGenerator.forward)
+    assert (loop.train, A2M.training_step, MotionGenerator.forward) == saved
+    assert generator_class("a2m") is A2M
+
+
+def test_throughput_benchmark_runs_and_is_bitwise(bench, ref, capsys):
+    """benchmarks/bench_train_throughput.py on the quick profile (bundled data), one step:
+    the before/after row is printed and both paths trained bitwise alike (the speed goals are
+    not checked at this size)."""
+    rc = bench.main(["--scale", "quick", "--methods", "a2m", "--steps", "1", "--repeats", "1"])
+    out = capsys.readouterr().out
+    row = [line for line in out.splitlines() if line.startswith("| a2m |")]
+    assert rc == 0 and len(row) == 1 and row[0].rstrip().endswith("| yes |")
