@@ -3,7 +3,9 @@ check that a CUDA device exists before any work, the device in job keys (nothing
 the CUDA determinism settings, and models that train and sample on the device their network is
 on.  No test needs a GPU: the device path runs on the CPU explicitly, and on PyTorch's ``meta``
 device, where a tensor made on the CPU that meets the network's tensors raises (as it would on
-CUDA)."""
+CUDA).  Every generator is run there: MarioNet, MANN, Action2Motion, ACTOR, MACVAE, SSMCT, the
+MultiAct composites, ODMO, Act-MoCoGAN and DLow-Gen (boolean-mask losses through
+:class:`MetaMasksAllTrue`)."""
 
 from __future__ import annotations
 
@@ -20,6 +22,8 @@ from repro.specs.scales import (device_override, gpus_per_job, load_scales, requ
 from repro.train.loop import current_device, to_device, train, use_device
 from model_fixtures import (clips, items, mini_clips, one_torch_thread,  # noqa: F401 (fixtures)
                             test_items)
+from test_items import synthetic_clipset
+from test_multiact_baselines import make_pairs
 
 TINY_MARIONET = dict(d_model=16, traj_dim=4, cond_heads=2, cond_ff=32, cond_layers=1, traj_heads=1,
                      traj_ff=8, unroll_heads=2, unroll_ff=32, unroll_layers=1, dec_heads=2,
@@ -27,6 +31,13 @@ TINY_MARIONET = dict(d_model=16, traj_dim=4, cond_heads=2, cond_ff=32, cond_laye
                      ss_activate_epoch=0, ss_accomplish_epoch=3, sample_batch_size=4)
 TINY_MANN = dict(n_experts=3, hidden=24, gating_hidden=8, batch_size=32, epochs=2, lr=3e-3,
                  restart_period=2, sample_batch_size=4)
+TINY_A2M = dict(dim_z=4, hidden=16, batch_size=8, epochs=1, lr=3e-3, sample_batch_size=4)
+TINY_ACTOR = dict(latent_dim=16, ff_size=32, num_layers=1, num_heads=2, batch_size=8, epochs=1,
+                  lr=1e-3, sample_batch_size=4)
+TINY_MACVAE = dict(d_model=32, layers=1, heads=2, ff_size=64, batch_size=8, epochs=1, lr=1e-3,
+                   sample_batch_size=5)
+TINY_SSMCT = dict(d_model=32, layers=1, heads=2, ff_size=64, batch_size=8, epochs=1, lr=1e-3,
+                  sample_batch_size=5, max_window=48)
 
 
 @pytest.fixture
@@ -235,8 +246,8 @@ class MetaReadsAsZeros(TorchFunctionMode):
         return fixed[name] if name in fixed else getattr(zeros, name)()
 
 
-def _on_meta(gen, fit_items, sample):
-    with MetaReadsAsZeros():
+def _on_meta(gen, fit_items, sample, mode=MetaReadsAsZeros):
+    with mode():
         with use_device("meta"):
             gen.fit(fit_items, seed=0)
         assert gen.device.type == "meta"
@@ -264,12 +275,16 @@ def test_mann_samples_on_the_networks_device(clips, items, test_items):
     assert out.motion.root.device.type == "cpu"
 
 
-@pytest.mark.parametrize("method", ["odmo", "act_mocogan"])
+@pytest.mark.parametrize("method", ["odmo", "act_mocogan", "dlow_gen"])
 def test_window_models_train_and_sample_on_the_networks_device(mini_clips, method):
     from repro.data.odmo_items import WindowSource
     from repro.models.base import generator_class
 
-    cfg = {"odmo": {"reduction": "sum", "enc_hidden": 16, "enc_feature": 16, "embed": 32,
+    cfg = {"dlow_gen": {"nz": 8, "nh_rnn": 16, "nh_mlp": (16,), "dlow_nh_mlp": (16,), "nk": 3,
+                        "batch_size": 16, "windows_per_epoch": 32, "vae_epochs": 1,
+                        "dlow_epochs": 1, "vae_epochs_fix": 1, "dlow_epochs_fix": 1,
+                        "val_windows": 16, "sample_batch_size": 4},
+           "odmo": {"reduction": "sum", "enc_hidden": 16, "enc_feature": 16, "embed": 32,
                     "hidden": 32, "epochs": 1, "windows_per_epoch": 32, "batch_size": 16,
                     "val_pairs": 16},
            "act_mocogan": {"dim_z_content": 8, "dim_z_motion": 4, "g_hidden": 32,
@@ -280,3 +295,158 @@ def test_window_models_train_and_sample_on_the_networks_device(mini_clips, metho
     labels = np.arange(pool.n_classes).repeat(2)
     out = _on_meta(g, pool, lambda g: g.sample_windows(labels, 20, seed=0, pool=pool))
     assert out.device.type == "cpu" and out.shape[:2] == (labels.size, 20)
+
+
+@pytest.mark.parametrize("representation", ["6d", "lie", "xyz"])
+def test_a2m_trains_and_samples_on_the_networks_device(clips, items, test_items, representation):
+    from repro.models.a2m import A2M
+
+    cfg = {**TINY_A2M, "representation": representation,
+           "initial_pose": representation != "xyz"}  # xyz without it: A2M's zero start vector
+    m = A2M(cfg, clips.skeleton, clips.n_classes, clips.fps)
+    if representation == "xyz":
+        out = _on_meta(m, items, lambda g: g.sample_joints(test_items, seed=0))
+        assert out.device.type == "cpu" and out.shape[0] == len(test_items)
+    else:
+        out = _on_meta(m, items, lambda g: g.sample(test_items, seed=0))
+        assert out.motion.root.device.type == "cpu" and out.motion.root.shape[0] == len(test_items)
+        with MetaReadsAsZeros():
+            assert m.sample(test_items, seed=0, use_mean=True).motion.root.device.type == "cpu"
+
+
+class MetaMasksAllTrue(MetaReadsAsZeros):
+    """:class:`MetaReadsAsZeros` for models whose losses select frames with a boolean mask
+    (ACTOR, MACVAE and SSMCT: ``out[valid]``).  Such an index has a data-dependent shape, which
+    the ``meta`` device cannot compute (it refuses ``nonzero``); here a boolean mask over a
+    tensor's leading dimensions reads as all True, so ``x[mask]`` is ``x`` with those
+    dimensions flattened — the same shape for every tensor the same mask selects from, which is
+    all a loss needs.  The device check stays PyTorch's own: every other op runs on ``meta`` as
+    it is, and a mask on another device than the tensor it selects from raises here (on CUDA
+    a CPU mask would cost a host round trip per use).  Integer tensors copied to the CPU read as
+    ones (valid lengths for ``pack_padded_sequence`` in MACVAE's recurrent backbones).
+
+    Why not record factory calls on the CPU instead: on the CPU a ``.to(self.device)`` is a
+    no-op, so a recorder cannot tell a tensor meant for the host (the sampled output, the noise
+    drawn on the CPU) from one that should have followed the network; on ``meta`` the network's
+    tensors are on another device and every missed move raises where it happens."""
+
+    def __torch_function__(self, func, types, args=(), kwargs=None):
+        kwargs = kwargs or {}
+        if func is torch.Tensor.__getitem__ and len(args) == 2:
+            t, idx = args
+            mask = idx[0] if isinstance(idx, tuple) and len(idx) == 1 else idx
+            if (isinstance(t, torch.Tensor) and isinstance(mask, torch.Tensor)
+                    and mask.dtype == torch.bool and (t.is_meta or mask.is_meta)):
+                if t.device != mask.device:
+                    raise RuntimeError(f"a boolean mask on {mask.device} selects from a tensor "
+                                       f"on {t.device}")
+                k = mask.dim()
+                if tuple(mask.shape) != tuple(t.shape[:k]):
+                    raise IndexError(f"mask {tuple(mask.shape)} does not match {tuple(t.shape)}")
+                return t.reshape((-1,) + tuple(t.shape[k:]))
+        t = args[0] if args else None
+        if (getattr(func, "__name__", "") == "cpu" and isinstance(t, torch.Tensor) and t.is_meta
+                and not t.is_floating_point() and t.dtype != torch.bool):
+            return torch.ones(t.shape, dtype=t.dtype)
+        return super().__torch_function__(func, types, args, kwargs)
+
+
+def test_the_mask_mode_still_catches_host_tensors():
+    """The mode lets masks through and nothing else: a CPU mask over a network tensor, a CPU
+    tensor meeting one, and a mask that does not fit all still raise."""
+    x = torch.zeros(2, 3, 4, device="meta")
+    with MetaMasksAllTrue():
+        assert x[torch.ones(2, 3, dtype=torch.bool, device="meta")].shape == (6, 4)
+        with pytest.raises(RuntimeError, match="boolean mask on cpu"):
+            x[torch.ones(2, 3, dtype=torch.bool)]
+        with pytest.raises(RuntimeError, match="device"):
+            x + torch.ones(4)
+        with pytest.raises(IndexError):
+            x[torch.ones(3, dtype=torch.bool, device="meta")]
+        assert torch.equal(torch.tensor([2, 5], device="meta").cpu(), torch.ones(2, dtype=torch.long))
+
+
+@pytest.fixture(scope="module")
+def pair_clips():
+    """Clips long enough to cut a [S_p, T, S_c] pair from each (test_multiact_baselines)."""
+    return synthetic_clipset(n_per_class=8, min_len=30, max_len=44)
+
+
+@pytest.fixture(scope="module")
+def pairs(pair_clips):
+    return make_pairs(pair_clips)
+
+
+def test_actor_trains_and_samples_on_the_networks_device(clips, items, test_items):
+    from repro.models.actor import ACTOR
+
+    m = ACTOR(TINY_ACTOR, clips.skeleton, clips.n_classes, clips.fps)
+    out = _on_meta(m, items, lambda g: g.sample(test_items, seed=0), MetaMasksAllTrue)
+    assert out.motion.root.device.type == "cpu" and out.motion.root.shape[0] == len(test_items)
+
+
+@pytest.mark.parametrize("backbone", ["transformer", "lstm", "mlp"])
+def test_macvae_trains_and_samples_on_the_networks_device(pairs, backbone):
+    from repro.models.macvae import MACVAE
+
+    m = MACVAE({**TINY_MACVAE, "backbone": backbone}, pairs.skeleton, pairs.n_classes, pairs.fps)
+    out = _on_meta(m, pairs, lambda g: g.sample(pairs, seed=0), MetaMasksAllTrue)
+    assert out.motion.root.device.type == "cpu" and out.motion.root.shape[0] == len(pairs)
+
+
+def test_ssmct_and_the_composites_train_and_sample_on_the_networks_device(pair_clips, pairs):
+    """SSMCT trains and in-betweens on the device; the composites (ACTOR + SSMCT, ACTOR +
+    Interpolation, aligned or not) sample with their components' networks there."""
+    from repro.data.clipset import TRAIN
+    from repro.models.actor import ACTOR
+    from repro.models.items import build_items
+    from repro.models.multiact_baselines import ActorSSMCT, Interpolation
+    from repro.models.ssmct import SSMCT
+
+    ss = SSMCT(TINY_SSMCT, pair_clips.skeleton, pair_clips.n_classes, pair_clips.fps)
+    out = _on_meta(ss, pairs, lambda g: g.sample(pairs, seed=0), MetaMasksAllTrue)
+    assert out.motion.root.device.type == "cpu" and out.motion.root.shape[0] == len(pairs)
+    actor = ACTOR(TINY_ACTOR, pair_clips.skeleton, pair_clips.n_classes, pair_clips.fps)
+    _on_meta(actor, build_items(pair_clips, TRAIN), lambda g: None, MetaMasksAllTrue)
+    for cls in (ActorSSMCT, Interpolation):
+        for align in (True, False):
+            parts = {"actor": actor, "ssmct": ss} if cls is ActorSSMCT else {"actor": actor}
+            comp = cls.from_components(parts, {"align": align})
+            assert comp.device.type == "meta"
+            with MetaReadsAsZeros():
+                res = comp.sample(pairs, seed=0)
+            assert res.motion.root.device.type == "cpu" and res.motion.root.shape[0] == len(pairs)
+
+
+def _sampled(out) -> tuple:
+    """A sample's tensors (GeneratedItems / GeneratedPairs: the motion's; else itself)."""
+    motion = getattr(out, "motion", None)
+    return (out,) if motion is None else (motion.root, motion.rot6d)
+
+
+@pytest.mark.parametrize("method", ["a2m", "actor", "macvae", "ssmct"])
+def test_baselines_on_the_cpu_explicitly_are_the_plain_path(method, clips, items, test_items,
+                                                            pair_clips, pairs):
+    """Training under ``use_device("cpu")`` and sampling after ``.to("cpu")`` give the plain
+    path's history and samples bit for bit (the moves are no-ops on the CPU; the noise is
+    drawn on the CPU in the same order either way)."""
+    from repro.models.base import generator_class
+
+    cfg = {"a2m": TINY_A2M, "actor": TINY_ACTOR, "macvae": TINY_MACVAE, "ssmct": TINY_SSMCT}
+    fit_items, sample_items = ((pairs, pairs) if method in ("macvae", "ssmct")
+                               else (items, test_items))
+    src = pairs if method in ("macvae", "ssmct") else clips
+
+    def run(explicit: bool):
+        g = generator_class(method)(cfg[method], src.skeleton, src.n_classes, src.fps)
+        if explicit:
+            with use_device(prepare_device("cpu")):
+                res = g.fit(fit_items, seed=1)
+            g.to("cpu")
+        else:
+            res = g.fit(fit_items, seed=1)
+        return res.history, _sampled(g.sample(sample_items, seed=2))
+
+    (ha, sa), (hb, sb) = run(False), run(True)
+    assert ha == hb
+    assert all(torch.equal(a, b) for a, b in zip(sa, sb))

@@ -92,6 +92,7 @@ from repro.models.items import ActionItems, GeneratedItems, pad_last
 from repro.motion.rotations import (axis_angle_to_matrix, matrix_to_6d, matrix_to_axis_angle,
                                     sixd_to_matrix)
 from repro.seeding import derive_seed
+from repro.train.loop import to_device
 
 
 class A2MConfig(GeneratorConfig):
@@ -371,28 +372,35 @@ class A2M(Generator):
     def generate_params(self, cond_items: ActionItems, *, seed: int,
                         use_mean: bool = False) -> torch.Tensor:
         """(N, T_max, n_params) raw parameters in the items' normalised frames (module
-        docstring); frames past an item's length are left as generated."""
+        docstring); frames past an item's length are left as generated.  The network runs on
+        its device (:attr:`device`); the noise is drawn on the CPU and moved there, and the
+        result is a CPU tensor."""
         check_items(self, cond_items)
         cfg, net = self.config, self.net
         net.eval()
         N, Tmax = len(cond_items), int(cond_items.lengths.max())
-        eps = item_noise(seed, self.method_id, (N, Tmax, cfg.dim_z))
+        eps = item_noise(seed, self.method_id, (N, Tmax, cfg.dim_z))   # drawn on the CPU
         start = self.start_params(cond_items)
         out = torch.zeros(N, Tmax, self.n_params)
+        dev = self.device
         for s in range(0, N, cfg.sample_batch_size):
             idx = torch.arange(s, min(N, s + cfg.sample_batch_size))
-            lengths = cond_items.lengths[idx]
-            onehot = F.one_hot(cond_items.labels[idx], self.n_classes).float()
+            T = int(cond_items.lengths[idx].max())
+            lengths, labels, prev, e = to_device(
+                (cond_items.lengths[idx], cond_items.labels[idx], start[idx], eps[idx]), dev)
+            onehot = F.one_hot(labels, self.n_classes).float()
             B = idx.numel()
-            h_prior = net.prior.init_hidden(B, start)
-            h_dec = net.decoder.init_hidden(B, start)
-            prev = start[idx]
-            for t in range(int(lengths.max())):
+            h_prior = net.prior.init_hidden(B, prev)
+            h_dec = net.decoder.init_hidden(B, prev)
+            steps = []
+            for t in range(T):
                 c = net.condition(onehot, t, lengths)
                 mu_p, logvar_p, h_prior = net.prior(torch.cat([prev, c], -1), h_prior)
-                z = mu_p if use_mean else mu_p + torch.exp(0.5 * logvar_p) * eps[idx, t]
+                z = mu_p if use_mean else mu_p + torch.exp(0.5 * logvar_p) * e[:, t]
                 prev, h_dec = net.decoder(torch.cat([prev, c, z], -1), h_dec)
-                out[idx, t] = prev
+                steps.append(prev)
+            if steps:
+                out[idx, :T] = torch.stack(steps, 1).cpu()   # one copy back per batch
         return out
 
     def generate_poses(self, cond_items: ActionItems, *, seed: int,

@@ -56,6 +56,7 @@ from repro.models.baseline_io import (check_items, item_noise, length_mask, pack
 from repro.models.items import ActionItems, GeneratedItems
 from repro.models.layers import TransformerDecoder, TransformerEncoder, sinusoidal_encoding
 from repro.seeding import derive_seed
+from repro.train.loop import to_device
 
 
 class ACTORConfig(GeneratorConfig):
@@ -204,19 +205,22 @@ class ACTOR(Generator):
     @torch.no_grad()
     def generate_poses(self, cond_items: ActionItems, *, seed: int,
                        use_mean: bool = False) -> torch.Tensor:
-        """(N, T_max, 6J+3) poses in the canonical frame, from the tags and durations only."""
+        """(N, T_max, 6J+3) poses in the canonical frame, from the tags and durations only
+        (a CPU tensor; the noise is drawn on the CPU, the network runs on its device)."""
         check_items(self, cond_items)
         cfg, net = self.config, self.net
         net.eval()
         N, Tmax = len(cond_items), int(cond_items.lengths.max())
         eps = item_noise(seed, self.method_id, (N, cfg.latent_dim))
         out = torch.zeros(N, Tmax, pose_dim(self.skeleton.n_joints))
+        dev = self.device
         for s in range(0, N, cfg.sample_batch_size):
             idx = torch.arange(s, min(N, s + cfg.sample_batch_size))
             lengths = cond_items.lengths[idx]
             T = int(lengths.max())
             z = torch.zeros_like(eps[idx]) if use_mean else eps[idx]
-            out[idx, :T] = net.decode(z, cond_items.labels[idx], lengths, T)
+            out[idx, :T] = net.decode(*to_device((z, cond_items.labels[idx], lengths), dev),
+                                      T).cpu()
         return out
 
     def sample(self, cond_items: ActionItems, *, seed: int, use_mean: bool = False) -> GeneratedItems:

@@ -68,6 +68,7 @@ from repro.motion.canon import CanonParams, face_front, uncanonicalize, zero_can
 from repro.motion.motion import Motion
 from repro.motion.rotations import matrix_to_6d, sixd_to_matrix
 from repro.seeding import derive_seed
+from repro.train.loop import to_device
 
 
 class MACVAEConfig(GeneratorConfig):
@@ -255,7 +256,8 @@ class MACVAE(Generator):
              use_mean: bool = False) -> GeneratedPairs:
         """One MACVAE step: ``[T̂, Ŝ_c]`` continuing the world-frame previous motions ``prev``
         (N, W) (``prev_lengths`` valid frames each) for labels ``a_c`` and lengths ``l_t``,
-        ``l_c`` (N,), in the world frame."""
+        ``l_c`` (N,), in the world frame.  The network runs on its device (:attr:`device`):
+        canonicalisation, the noise (drawn on the CPU) and the result stay on the CPU."""
         cfg, net = self.config, self.net
         net.eval()
         if not isinstance(prev, Motion) or prev.skeleton != self.skeleton:
@@ -278,15 +280,17 @@ class MACVAE(Generator):
         eps = self._noise(seed, N)
         n = l_t + l_c
         out = torch.zeros(N, int(n.max()), net.pose_dim)
+        dev = self.device
         for s in range(0, N, cfg.sample_batch_size):
             idx = torch.arange(s, min(N, s + cfg.sample_batch_size))
-            p_len = lp[idx]
-            pp = poses[idx, :int(p_len.max())]
-            priors = net.prior(net.prevnet_input(pp, p_len, labels[idx]), labels[idx])
-            zs = [mu if use_mean else mu + torch.exp(0.5 * lv) * eps[idx, k]
+            pp = poses[idx, :int(lp[idx].max())]
+            pp, p_len, lab, lt, lc, nb, e = to_device(
+                (pp, lp[idx], labels[idx], l_t[idx], l_c[idx], n[idx], eps[idx]), dev)
+            priors = net.prior(net.prevnet_input(pp, p_len, lab), lab)
+            zs = [mu if use_mean else mu + torch.exp(0.5 * lv) * e[:, k]
                   for k, (mu, lv) in enumerate(priors)]
-            res = net.postprocess(pp, p_len, net.decode(zs, l_t[idx], l_c[idx]), n[idx])
-            out[idx, :res.shape[1]] = res
+            res = net.postprocess(pp, p_len, net.decode(zs, lt, lc), nb)
+            out[idx, :res.shape[1]] = res.cpu()
         rot6d, root = unpack_poses(out, self.skeleton.n_joints)
         rot6d = matrix_to_6d(sixd_to_matrix(pad_last(rot6d, n)))
         local = Motion(pad_last(root, n).to(params.rotation.dtype),

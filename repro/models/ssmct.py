@@ -109,6 +109,7 @@ from repro.motion.rotations import (
     sixd_to_quat,
 )
 from repro.seeding import derive_seed
+from repro.train.loop import to_device
 
 #: keyframe-embedding kinds
 KNOWN, MISSING, PADDING = 0, 1, 2
@@ -345,14 +346,15 @@ class SSMCT(Generator):
     # -- inference -----------------------------------------------------------------------------
     @torch.no_grad()
     def _complete(self, inp: torch.Tensor, kind: torch.Tensor, lengths: torch.Tensor):
-        """Network predictions pasted into the missing frames, in sampling batches."""
-        net, bs = self.net, self.config.sample_batch_size
+        """Network predictions pasted into the missing frames, in sampling batches (the
+        network runs on its device; inputs and result are CPU tensors)."""
+        net, bs, dev = self.net, self.config.sample_batch_size, self.device
         net.eval()
         out = inp.clone()
         for s in range(0, inp.shape[0], bs):
             sl = slice(s, min(inp.shape[0], s + bs))
             W = int(lengths[sl].max())
-            pred = net(inp[sl, :W], kind[sl, :W], lengths[sl])
+            pred = net(*to_device((inp[sl, :W], kind[sl, :W], lengths[sl]), dev)).cpu()
             miss = kind[sl, :W] == MISSING
             out[sl, :W] = torch.where(miss[..., None], pred, inp[sl, :W])
         return out
