@@ -150,7 +150,51 @@ def test_plan_keys_follow_the_device():
     cpu = train_keys(resolve_scale("quick"))
     assert cpu and cpu == train_keys(resolve_scale("quick", device="cpu"))
     cuda = train_keys(resolve_scale("quick", device="cuda"))
-    assert len(cuda) == len(cpu) and not set(cuda) & set(cpu)
+    # every training but nearest_clip's (a retrieval on the CPU) changes key
+    assert len(cuda) == len(cpu) and len(set(cuda) & set(cpu)) == 1
+
+
+def _plan_jobs(scale):
+    """label -> job of quick Table 1's graph at ``scale``."""
+    from repro.engine.job import topo_order
+    from repro.engine.tables import build_plan
+    from repro.specs.load import find_spec
+
+    plan = build_plan(find_spec("marionette/table1"), scale, "bandai2-mini")
+    return {j.label: j for j in topo_order(plan.jobs())}
+
+
+def test_only_jobs_computing_with_a_network_carry_the_device(no_cuda, tmp_path, monkeypatch,
+                                                              capsys):
+    """With --device cuda, train and generate of the neural methods carry the device (key and
+    Ray's GPU); measure, measure_real and nearest_clip's jobs compute on the CPU and carry
+    none, so their key material is the CPU plan's."""
+    from cli.main import main
+
+    monkeypatch.setenv("REPRO_HOME", str(tmp_path))
+    assert main(["plan", "marionette/table1", "--device", "cuda", "--json"]) == 0  # no GPU needed
+    capsys.readouterr()
+    with device_override("cuda"):
+        cuda = _plan_jobs(resolve_scale("quick"))
+    cpu = _plan_jobs(resolve_scale("quick"))
+    assert sorted(cuda) == sorted(cpu) and len(cuda) == 38
+    on_device = {label for label, j in cuda.items() if "device" in j.key_parts()}
+    neural = {label for label, j in cuda.items() if j.kind in ("train", "generate")
+              and not label.startswith("nearest_clip/")}
+    assert on_device == neural and len(neural) == 16
+    for label, j in cuda.items():
+        assert "device" not in cpu[label].key_parts()  # the CPU plan names no device anywhere
+        if label in neural:
+            assert j.key_parts()["device"]["type"] == "cuda" and j.device == "cuda"
+        else:
+            assert j.kind in ("measure", "measure_real") or label.startswith("nearest_clip/")
+            assert j.device is None
+            parts, cpu_parts = j.key_parts(), cpu[label].key_parts()
+            # same key material apart from inputs that computed on the GPU
+            assert {k: v for k, v in parts.items() if k != "inputs"} == \
+                {k: v for k, v in cpu_parts.items() if k != "inputs"}
+            if j.kind == "measure_real" or label.startswith("nearest_clip/"):
+                assert j.key() == cpu[label].key()
 
 
 def test_prepare_device_on_the_cpu_changes_nothing():
@@ -450,3 +494,40 @@ def test_baselines_on_the_cpu_explicitly_are_the_plain_path(method, clips, items
     (ha, sa), (hb, sb) = run(False), run(True)
     assert ha == hb
     assert all(torch.equal(a, b) for a, b in zip(sa, sb))
+
+
+# -- run records ------------------------------------------------------------------------------
+
+def test_run_record_names_the_device_and_the_gpu(tmp_path, monkeypatch):
+    """A CUDA run's record says env.device "cuda" (the scale's device, passed by run_tables)
+    and the GPU: the card's name, torch.version.cuda and cuDNN's version; a CPU run's has no
+    gpu entry."""
+    from repro.store import runs
+    from repro.engine.runner import run_tables
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "get_device_name", lambda device=None: "Test GPU 80GB")
+    rec = runs.RunRecorder(table="toy/gpu", device="cuda", runs_dir=tmp_path)
+    env = rec.data["env"]
+    assert env["device"] == "cuda"
+    assert env["gpu"]["name"] == "Test GPU 80GB" and env["gpu"]["cuda"] == torch.version.cuda
+    assert "cudnn" in env["gpu"]
+    assert "gpu" not in runs.RunRecorder(table="toy/cpu", runs_dir=tmp_path).data["env"]
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)  # a Ray driver: no card
+    assert runs.RunRecorder(table="toy/ray", device="cuda:1",
+                            runs_dir=tmp_path).data["env"]["gpu"]["name"] is None
+
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def recorder(**kw):  # what run_tables gives the recorder, then stop before any work
+        seen.append(kw.get("device"))
+        raise Stop
+
+    monkeypatch.setattr(runs, "RunRecorder", recorder)
+    for device in ("cuda", None):
+        with device_override(device), pytest.raises(Stop):
+            run_tables(["marionette/table1"], progress=False)
+    assert seen == ["cuda", "cpu"]

@@ -308,3 +308,148 @@ def test_help_does_not_import_ray():
                           "cli.main.build_parser().parse_args(['run', 'x', '--executor', 'ray']); "
                           "print('ray' in sys.modules)"], capture_output=True, text=True)
     assert out.stdout.strip() == "False", out.stderr
+
+
+# -- review fixes: SIGTERM, the address, GPUs, the driver's device check, Ray = local ----------
+
+SIGTERM_DRIVER = '''
+"""A driver that runs a slow training through Ray (starting its own local Ray, so ray.init runs
+inside the executor's SIGTERM guard) and writes the run record's path and each start."""
+import sys
+from pathlib import Path
+
+from repro.engine.executor import ProgressHook, execute
+from repro.engine.job import Job
+from repro.engine.ray_executor import RayBackend
+from repro.store.objects import Store
+from repro.store.runs import RunRecorder
+
+store, started, runs = sys.argv[1:4]
+
+
+class Hook(ProgressHook):
+    def job_started(self, job, key):
+        with open(started, "a") as f:
+            f.write(job.label + "\\n")
+
+
+prep = Job("prepare", "repro_rayjobs:prepare", {"data_seed": 5}, deterministic=True,
+           label="prep", threads=1)
+train = Job("train", "repro_rayjobs:train", {"steps": 10 ** 8}, (prep,), seed=0,
+            label="train/slow", threads=1)
+measure = Job("measure", "repro_rayjobs:measure", {}, (train, prep), seed=0,
+              label="measure/slow", threads=1)
+with RunRecorder(table="toy/ray-sigterm", runs_dir=runs) as rec:
+    Path(started).with_suffix(".run").write_text(str(rec.path))
+    try:
+        execute([measure], store=Store(store), recorder=rec, keep_going=True,
+                backend=RayBackend(), hook=Hook())
+    except KeyboardInterrupt:
+        sys.exit(130)
+'''
+
+
+def test_sigterm_to_a_ray_driver_records_the_run_interrupted(ray_cluster, tmp_path):
+    """ray.init replaces the executor's SIGTERM handler with one that exits: without putting
+    ours back, SIGTERM ends the run FAILED (SystemExit) instead of INTERRUPTED."""
+    import signal
+    import time
+
+    script = tmp_path / "driver.py"
+    script.write_text(SIGTERM_DRIVER)
+    started = tmp_path / "started.txt"
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    env["REPRO_HOME"] = str(tmp_path / "home")
+    proc = subprocess.Popen([sys.executable, str(script), str(tmp_path / "store"), str(started),
+                             str(tmp_path / "runs")], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 240
+        while not (started.exists() and "train/slow" in started.read_text()):
+            assert proc.poll() is None, proc.communicate()[0]
+            assert time.monotonic() < deadline, "the slow training never started"
+            time.sleep(0.5)
+        time.sleep(1.0)  # the training is under way in a Ray worker
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, out
+    run = load_run(started.with_suffix(".run").read_text()).run
+    assert run["status"] == "INTERRUPTED", (run["status"], run["error"], out)
+    assert run["note"] == "interrupted (SIGTERM)"
+    st = {j["label"]: j["status"] for j in run["jobs"]}
+    assert st == {"prep": COMPUTED, "train/slow": "interrupted", "measure/slow": CANCELLED}
+
+
+def test_cli_unreachable_address_is_refused_before_any_work(monkeypatch, capsys, tmp_path):
+    """A bad --address ends the command in seconds, exit 2, one line, and leaves no run record
+    (it used to be noticed after the evaluators trained, leaving a FAILED run)."""
+    import time
+
+    pytest.importorskip("ray")
+    from repro.store.runs import run_dirs
+
+    monkeypatch.setenv("REPRO_HOME", str(tmp_path))
+    before = len(run_dirs())
+    t0 = time.monotonic()
+    rc, err = _cli(["run", "marionette/table1", "--executor", "ray", "--address", "127.0.0.1:1",
+                    "--quiet"], monkeypatch, capsys)
+    assert rc == 2 and "--address 127.0.0.1:1: no Ray cluster answers there" in err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert time.monotonic() - t0 < 30
+    assert len(run_dirs()) == before == 0
+    assert not (tmp_path / "store").exists()
+
+
+def test_cuda_job_on_a_cluster_without_gpus_is_refused_not_left_pending(ray_cluster, tmp_path):
+    from repro.engine.ray_executor import RayBackend
+
+    prep = Job("prepare", f"{MOD}:prepare", {"data_seed": 3}, deterministic=True, label="prep",
+               threads=1)
+    train = Job("train", f"{MOD}:train", {"steps": 5}, (prep,), seed=0, label="train/gpu",
+                threads=1, device="cuda")
+    with pytest.raises(ConfigError, match="train/gpu computes on cuda but the Ray cluster has "
+                       "no GPU"):
+        execute([train], store=Store(tmp_path / "store"), backend=RayBackend(), keep_going=True)
+
+
+def test_ray_executor_skips_the_drivers_device_check(ray_cluster, monkeypatch):
+    """--executor ray --device cuda on a driver without a GPU: the cluster's GPUs count (checked
+    by the backend), so the driver-side check is skipped; the local executor still refuses."""
+    import torch
+
+    from cli.commands.tables import executor_backend
+    from cli.main import build_parser
+    from repro.engine.ray_executor import RayBackend
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    parser = build_parser()
+    args = parser.parse_args(["run", "marionette/table1", "--executor", "ray", "--device", "cuda"])
+    assert isinstance(executor_backend(args), RayBackend)
+    args = parser.parse_args(["run", "marionette/table1", "--device", "cuda"])
+    with pytest.raises(ConfigError, match=r"\(--device\)"):
+        executor_backend(args)
+
+
+@pytest.mark.slow
+def test_quick_table1_through_ray_has_the_local_runs_values(ray_cluster, tmp_path, monkeypatch):
+    """Quick Table 1 run locally and through the two-CPU Ray (separate homes: data, evaluators
+    and every job computed twice) gives the same raw replicate values, bit for bit."""
+    from repro.engine.ray_executor import RayBackend
+    from repro.engine.runner import run_table
+    from repro.paths import runs_root
+
+    def values(home, **kw):
+        monkeypatch.setenv("REPRO_HOME", str(tmp_path / home))
+        _, _, run_id = run_table("marionette/table1", progress=False, **kw)
+        rec = load_run(runs_root() / run_id)
+        assert rec.run["status"] == "FINISHED"
+        return sorted((v["row"], v["column"], v["replicate"], v["job"], repr(v["value"]))
+                      for v in rec.values)
+
+    local = values("local", jobs=2)
+    remote = values("ray", backend=RayBackend())
+    assert len(local) > 100 and remote == local

@@ -50,7 +50,10 @@ def _claim_option(p: argparse.ArgumentParser) -> None:
 def _on_device(computes: bool):
     """Decorator of a table command: run it with ``--device`` overriding every scale profile's
     device (:func:`repro.specs.scales.device_override`); a command that ``computes`` first
-    checks that this machine has the device (one clear error, exit 2, before any work)."""
+    checks that this machine has the device (one clear error, exit 2, before any work), unless
+    its jobs run on Ray (``--executor ray``): the GPUs are then the cluster's, checked against
+    its resources before a task is submitted (:class:`~repro.engine.ray_executor.RayBackend`),
+    and a driver without a GPU may run a CUDA table there."""
     def wrap(cmd):
         @functools.wraps(cmd)
         def run(args) -> int:
@@ -58,7 +61,7 @@ def _on_device(computes: bool):
             from repro.specs.scales import device_override, require_device, resolve_scale
 
             with device_override(args.device), claiming_ids(getattr(args, "claim_id", False)):
-                if computes:
+                if computes and getattr(args, "executor", "local") != "ray":
                     require_device(resolve_scale(args.scale, args.dataset))
                 return cmd(args)
         return run

@@ -39,6 +39,7 @@ from __future__ import annotations
 import logging
 import os
 import secrets
+import signal
 import socket
 import threading
 import time
@@ -146,13 +147,17 @@ class RayBackend:
     ``address``: the cluster (``host:port`` of the head node, ``ray://host:port`` for Ray
     Client, ``auto``); ``None`` connects where ``RAY_ADDRESS`` says or, without it, starts a Ray
     instance on this machine for the run.  A Ray already initialised in this process (a test,
-    a notebook) is used as it is and left running.  Ray is imported here, so a missing install
-    fails before anything is computed; the cluster is joined only when a graph has jobs to run.
+    a notebook) is used as it is and left running.  Ray is imported here, and an ``address``
+    where nothing listens is refused here (:func:`_check_address`), so a missing install or a
+    mistyped address fails before anything is computed (the evaluators train before the graph
+    runs); the cluster is joined only when a graph has jobs to run.
     """
 
     def __init__(self, address: str | None = None):
         self.ray = import_ray()
         self.address = address
+        if address:
+            _check_address(address)
 
     def __call__(self, store: Store, hook: ProgressHook, by_key: dict[str, Job],
                  threads: int | None) -> _RaySession:
@@ -181,14 +186,20 @@ class _RaySession(Backend):
     def __enter__(self) -> _RaySession:
         ray = self.ray
         if not ray.is_initialized():
-            if self.cfg.address:
-                _check_address(self.cfg.address)
+            # ray.init installs its own SIGTERM handler (sys.exit), which would replace the
+            # executor's (SIGTERM -> KeyboardInterrupt: the run recorded INTERRUPTED, the tasks
+            # stopped); the handler in place before it is put back
+            sigterm = signal.getsignal(signal.SIGTERM)
             try:
                 ray.init(address=self.cfg.address, log_to_driver=False,
                          logging_level=logging.WARNING)
             except ConnectionError as e:
                 raise ConfigError(f"--address {self.cfg.address or 'auto'}: cannot connect to "
                                   f"a Ray cluster ({e})") from None
+            finally:
+                if (threading.current_thread() is threading.main_thread()
+                        and sigterm is not None):
+                    signal.signal(signal.SIGTERM, sigterm)
             self.owned = True
         try:
             self._open()
@@ -206,6 +217,7 @@ class _RaySession(Backend):
         self.probe.write_text("written by the driver of a Ray run; removed when it ends\n")
         self.node_cpus = max((float(n.get("Resources", {}).get("CPU", 0)) for n in ray.nodes()
                               if n.get("Alive")), default=0.0)
+        self.cluster_gpus = float(ray.cluster_resources().get("GPU", 0))
         self.inbox = ray.remote(_Inbox).options(num_cpus=0).remote()
         self._drainer = threading.Thread(target=self._drain, name="repro-ray-progress",
                                          daemon=True)
@@ -254,7 +266,8 @@ class _RaySession(Backend):
     # ------------------------------------------------------------------ the Backend
     def resources(self, job: Job) -> dict[str, Any]:
         """What the task of ``job`` asks Ray for: its threads as CPUs, one GPU when it computes
-        on a CUDA device (module docstring)."""
+        on a CUDA device (module docstring).  A request no node can meet is refused here, one
+        line, instead of a task Ray would keep pending for ever."""
         from repro.seeding import device_type
 
         cpus = job.threads or self.threads or 1
@@ -263,6 +276,9 @@ class _RaySession(Backend):
                               f"of the Ray cluster has {self.node_cpus:g} CPUs; give the nodes "
                               "more CPUs or use a profile with fewer threads")
         gpus = 0 if device_type(getattr(job, "device", None)) == "cpu" else 1
+        if gpus > self.cluster_gpus:
+            raise ConfigError(f"job {job.name} computes on {job.device} but the Ray cluster has "
+                              "no GPU; add GPU nodes or pass --device cpu")
         return {"num_cpus": cpus, "num_gpus": gpus}
 
     def submit(self, job, key, inputs, force):

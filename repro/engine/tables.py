@@ -248,8 +248,15 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
                      budget=float(budget), evaluator_seed=int(evaluator_seed))
     # held-out share of the training actions for the learning curve (repro.train.validation)
     validation = {"fraction": float(getattr(scale, "validation_fraction", 0.0) or 0.0), "seed": 0}
-    # every table job computes with the profile's thread count, on its device (--device)
-    job = partial(Job, threads=scale.threads, device=getattr(scale, "device", "cpu"))
+    # every table job computes with the profile's thread count; only the jobs that compute
+    # with a network (train and generate of a method that ``uses_device``) on the profile's
+    # device (--device): measuring runs on the CPU, so its keys never name a device and Ray
+    # gives it no GPU
+    job = partial(Job, threads=scale.threads)
+    device = getattr(scale, "device", "cpu")
+
+    def device_of(method: str) -> str | None:
+        return device if getattr(generator_class(method), "uses_device", True) else None
     for row in spec.rows:
         rp = RowPlan(row.id, row.method)
         plan.rows.append(rp)
@@ -311,7 +318,7 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
                 return job("train", f"{STEPS}:train_method",
                            {"dataset": dataset, "items": b.item_source, "method": method,
                             "method_config": method_cfg, "validation": validation},
-                           seed=seed, fingerprints=fps,
+                           seed=seed, fingerprints=fps, device=device_of(method),
                            label=f"{method}/train"
                            + ("" if seed == seeds[0] else f"/s{seed}"),
                            plugins=(module,))
@@ -355,6 +362,7 @@ def build_plan(spec, scale, dataset: str | None = None, seeds: tuple[int, ...] |
                     gfps = {**fps, "evaluator": b.evaluator_key}
                 gen = job("generate", f"{STEPS}:generate", gcfg,
                           inputs=tuple(per_seed[r if retrain else 0]), seed=s, fingerprints=gfps,
+                          device=device_of(row.method),
                           label=f"{row.id if train_method != row.method else row.method}"
                                 f"/generate/r{r}",
                           plugins=tuple(dict.fromkeys((method_module, train_module, b.module))))

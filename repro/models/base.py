@@ -131,6 +131,10 @@ class Generator(abc.ABC):
     Config: ClassVar[type[GeneratorConfig]]
     #: the condition fields (``CONDITION_FIELDS``) this method reads
     uses: ClassVar[frozenset[str]] = frozenset({"label", "length"})
+    #: whether the method trains and samples with a network on the job's device (a table gives
+    #: its train and generate jobs the profile's / ``--device``'s device only then); False for
+    #: a method that computes on the CPU whatever the device (``nearest_clip``: retrieval)
+    uses_device: ClassVar[bool] = True
 
     def __init__(self, config: GeneratorConfig | Mapping[str, Any] | None, skeleton: Skeleton,
                  n_classes: int, fps: float):

@@ -96,6 +96,7 @@ class NearestClip(Generator):
     method_id = "nearest_clip"
     Config = NearestClipConfig
     uses = frozenset({"label", "initial_motion", "length"})
+    uses_device = False  # retrieval on the CPU: its jobs carry no device (no GPU asked for)
 
     def __init__(self, config, skeleton, n_classes: int, fps: float):
         super().__init__(config, skeleton, n_classes, fps)

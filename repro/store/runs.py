@@ -8,7 +8,8 @@ folder names sort by start time) holds
   ``config``, ``scale``, ``dataset``, ``git`` {commit, diff_sha256 of ``git diff HEAD
   --binary`` (null when clean), dirty} (null outside a checkout), ``packages`` (python, torch,
   numpy, scipy, scikit-learn, roma, pydantic, repro), ``env`` {device, dtype, threads, host,
-  platform, pid}, ``created``/``started``/``ended`` (UTC), ``keys`` {read, written}, ``jobs``
+  platform, pid; on a CUDA device also ``gpu`` {name, cuda, cudnn}, :func:`gpu_info`},
+  ``created``/``started``/``ended`` (UTC), ``keys`` {read, written}, ``jobs``
   (kind, label, key, status, seconds per job), ``error``/``note``, ``command``, ``extra``;
 - ``values.jsonl``: one JSON object per line ``{schema, row, column, replicate, value, ...}``
   with every raw replicate value (non-finite values are written as ``null`` with
@@ -122,6 +123,24 @@ def cpu_info() -> dict[str, Any]:
     return {"model": model, "cpus": os.cpu_count(), "isa": [f for f in _ISA_FLAGS if f in flags]}
 
 
+def gpu_info(device: str | None) -> dict[str, Any] | None:
+    """The GPU a CUDA run computes on, as this process sees it: the card's name, the CUDA
+    version torch was built with and cuDNN's (a CUDA result can depend on all three); None on
+    the CPU.  A driver without a GPU (``--executor ray``: the cards are the workers') records
+    ``name`` None, as torch cannot name a card it does not see."""
+    from repro.seeding import device_type
+
+    if device_type(device) != "cuda":
+        return None
+    torch = sys.modules.get("torch")
+    if torch is None:
+        import torch
+    visible = torch.cuda.is_available()
+    cudnn = torch.backends.cudnn.version() if torch.backends.cudnn.is_available() else None
+    return {"name": torch.cuda.get_device_name(torch.device(device)) if visible else None,
+            "cuda": torch.version.cuda, "cudnn": cudnn}
+
+
 def _proc_start(pid: int) -> str | None:
     """The process start time in clock ticks since boot (Linux), to tell a reused pid apart."""
     try:
@@ -216,6 +235,7 @@ class RunRecorder:
             threads = int(sys.modules["torch"].get_num_threads())
         pid = os.getpid()
         now = utc_now()
+        gpu = gpu_info(device)
         self._index = index
         self._values: list[dict[str, Any]] = []
         self._data: dict[str, Any] = {
@@ -226,7 +246,8 @@ class RunRecorder:
             "git": git_state(), "packages": package_versions(),
             "env": {"device": device, "dtype": dtype, "threads": threads,
                     "host": socket.gethostname(), "platform": platform.platform(),
-                    "cpu": cpu_info(), "pid": pid, "pid_start": _proc_start(pid)},
+                    "cpu": cpu_info(), "pid": pid, "pid_start": _proc_start(pid),
+                    **({} if gpu is None else {"gpu": gpu})},
             "command": list(command) if command is not None else list(sys.argv),
             "created": now, "started": None, "ended": None,
             "keys": {"read": [], "written": []}, "jobs": [], "error": None, "note": None,
