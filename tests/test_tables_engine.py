@@ -14,6 +14,7 @@ import sys
 import tomllib
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from repro.paths import repo_root
@@ -129,6 +130,60 @@ def test_table_runs_end_to_end_then_all_hits(tiny_tables, _repro_home, monkeypat
     _, summary2, run2 = run_table("marionette/table1", scale="quick", progress=False)
     assert set(summary2["counts"]) == {"hit"}
     assert summary2["cells"] == summary["cells"]
+
+
+def test_a_cached_rerun_reads_no_evaluator_weights(tiny_tables, _repro_home, monkeypatch):
+    """Fixed costs (issue 17): when every measurement is stored, the rerun neither loads nor
+    re-hashes the evaluator's weights (its record names it) and the gate reads its stored
+    real rows; the summary, footer and cells are those of the first run."""
+    from repro.engine.runner import run_table
+    from repro.eval import provider
+    from repro.eval.evaluator import Evaluator
+
+    # an evaluator an earlier test loaded (same key, another home) would not be stored here
+    monkeypatch.setattr(provider, "_LOADED", {})
+    _, s1, _ = run_table("marionette/table1", scale="quick", progress=False)
+    real_load = Evaluator.load.__func__
+
+    def record_only(cls, path, *, weights=True):
+        if weights:
+            raise AssertionError("a fully cached rerun loaded evaluator weights")
+        return real_load(cls, path, weights=False)
+
+    monkeypatch.setattr(Evaluator, "load", classmethod(record_only))
+    monkeypatch.setattr(provider, "_LOADED", {})  # a fresh process: nothing loaded yet
+    _, s2, _ = run_table("marionette/table1", scale="quick", progress=False)
+    assert set(s2["counts"]) == {"hit"}
+    assert s2["evaluators"] == s1["evaluators"] and s2["cells"] == s1["cells"]
+    assert s2["footer"][:-1] == s1["footer"][:-1]  # the last line names each run's id
+    assert list(s2["rows"]) == ["real", "nearest_clip"]  # the stored summary keeps row order
+    (_, line), = s2["evaluators"].items()
+    stored = json.loads(next((_repro_home / "store" / "objects").rglob("evaluator.json"))
+                        .read_text())
+    assert stored["fingerprint"][:12] in line
+    assert not provider._LOADED  # the record is not kept as a scoring evaluator
+    with pytest.raises(RuntimeError, match="without its weights"):
+        Evaluator.load(next((_repro_home / "store" / "objects").rglob("evaluator.json")).parent,
+                       weights=False).features(np.zeros((1, 30, 19, 3)))
+
+
+def test_show_and_list_of_a_run_table_import_no_torch(tiny_tables, _repro_home):
+    """``repro show`` and ``repro list`` read run records only: no torch, no roma in the
+    process (fixed costs, issue 17)."""
+    from repro.engine.runner import run_table
+
+    run_table("marionette/table1", scale="quick", progress=False)
+    for args in (["show", "marionette/table1"], ["list"]):
+        code = (f"import sys; from cli.main import main; rc = main({args!r}); "
+                "heavy = sorted(m for m in ('torch', 'roma') if m in sys.modules); "
+                "print('HEAVY', heavy); sys.exit(rc)")
+        import os
+
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                             check=False, cwd=repo_root(), env={**os.environ, "REPRO_HOME": str(_repro_home),
+                                                   "REPRO_TABLES": str(tiny_tables)})
+        assert out.returncode == 0, out.stderr
+        assert "HEAVY []" in out.stdout, (args, out.stdout[-300:])
 
 
 def test_a_failing_method_fails_its_row_and_the_others_go_on(tiny_tables, _repro_home,

@@ -134,8 +134,10 @@ def _footer(plan, evaluators: dict[str, Any], run_id: str | None,
     return lines
 
 
-def _evaluators(plan, *, train: bool, progress: bool) -> dict[str, str]:
-    """Describe (and, with ``train``, train or load) every band's evaluator."""
+def _evaluators(plan, *, train: bool, progress: bool, weights: bool = True) -> dict[str, str]:
+    """Describe (and, with ``train``, train or load) every band's evaluator; without
+    ``weights`` a stored evaluator is described from its record (no weights read: nothing
+    will be scored, :func:`_measurements_stored`), one not stored yet is still trained."""
     from repro.engine.steps import evaluator_for
 
     out: dict[str, str] = {}
@@ -148,9 +150,23 @@ def _evaluators(plan, *, train: bool, progress: bool) -> dict[str, str]:
             continue
         if progress:
             print(f"repro: evaluator {e['kind']} on {e['dataset']} ({e['scale']})…", file=sys.stderr)
-        ev = evaluator_for(b.step_config(plan.dataset, with_evaluator=True))
+        ev = evaluator_for(b.step_config(plan.dataset, with_evaluator=True), weights=weights)
         out[b.evaluator_key] = ev.describe()
     return out
+
+
+def _measurements_stored(plans, force) -> bool:
+    """Whether every measurement the plans ask for is already in the store and nothing is
+    forced: then no job will score, so the evaluators' weights need not be read (their
+    records name them) and the gate reads its stored real rows.  A measurement that turns
+    out corrupt when the executor verifies it is recomputed by its job, which loads the
+    evaluator itself (:func:`repro.engine.steps.measure`)."""
+    if force:
+        return False
+    from repro.store.objects import Store
+
+    store = Store()
+    return all(store.has(j.key()) for p in plans for rp in p.rows for j in _row_targets(rp))
 
 
 def _train_one_evaluator(cfg: dict) -> str:
@@ -197,7 +213,8 @@ def _gate(plan) -> None:
     """The real-data gate for every band that has a real row (evaluation issue, item 4).
 
     The real rows the gate reads are stored by content (:func:`_real_rows`), so a rerun
-    checks the gate without recomputing them; the check itself always runs."""
+    checks the gate without recomputing them, from the evaluator's record (its weights are
+    read only when the real rows must be computed); the check itself always runs."""
     from repro.engine.steps import clipset, evaluator_clipset, evaluator_for
     from repro.eval import check_real_gate, evaluator_stats
     from repro.eval.protocols import get_protocol
@@ -209,16 +226,20 @@ def _gate(plan) -> None:
         if b.evaluator is None or b.evaluator_key in seen:
             continue
         seen.add(b.evaluator_key)
-        ev = evaluator_for(b.step_config(plan.dataset, with_evaluator=True))
+        cfg = b.step_config(plan.dataset, with_evaluator=True)
+        ev = evaluator_for(cfg, weights=False)
         clips = evaluator_clipset(get_protocol(b.protocol, b.params), clipset(plan.dataset))
-        rows = _real_rows(b.evaluator, b.evaluator_key, ev, clips)
+        rows = _real_rows(b.evaluator, b.evaluator_key, ev, clips,
+                          load=lambda cfg=cfg: evaluator_for(cfg))
         check_real_gate(rows, evaluator_stats(ev))
 
 
-def _real_rows(e: dict, evaluator_key: str, ev, clips) -> dict:
+def _real_rows(e: dict, evaluator_key: str, ev, clips, load=None) -> dict:
     """:func:`repro.eval.real_rows` of one evaluator, stored under a key made of everything
     they depend on: the evaluator's store key, the clips, the evaluator settings (sample
-    counts), the profile's bootstrap resamples and the source of ``repro.eval.real``."""
+    counts), the profile's bootstrap resamples and the source of ``repro.eval.real``.
+    ``ev`` may be a record without weights; ``load()`` then gives the scoring one, called
+    only when the rows are not stored."""
     from repro.engine.source_hash import source_hash
     from repro.eval import real_rows
     from repro.eval.real import _bootstrap_resamples
@@ -232,7 +253,8 @@ def _real_rows(e: dict, evaluator_key: str, ev, clips) -> dict:
                        "source": source_hash("repro.eval.real")})
 
     def compute(out: Path) -> None:
-        rows = real_rows(e["dataset"], e["scale"], seed=0, kind=e["kind"], evaluator=ev,
+        scorer = ev if ev.module is not None or load is None else load()
+        rows = real_rows(e["dataset"], e["scale"], seed=0, kind=e["kind"], evaluator=scorer,
                          clipset=clips)
         (out / "real_rows.json").write_text(json.dumps(rows, sort_keys=True))
 
@@ -268,7 +290,7 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
     the graph's jobs run there; the evaluators and the gate still run here."""
     from contextlib import ExitStack
 
-    from repro.engine.tables import build_plan, collect_trainings, collect_values, summarise
+    from repro.engine.tables import build_plan, collect_trainings, collect_values
     from repro.store.runs import RunRecorder
 
     sc = _scale(scale, dataset)
@@ -282,10 +304,13 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
     with ExitStack() as stack:
         recs = [stack.enter_context(RunRecorder(
             table=p.spec.id, spec_version=p.spec.version, spec_hash=p.spec.spec_hash,
-            config=p.config, scale=sc.name, dataset=p.dataset)) for p in plans]
-        if jobs > 1:
+            config=p.config, scale=sc.name, dataset=p.dataset,
+            device=getattr(sc, "device", "cpu"))) for p in plans]
+        stored = _measurements_stored(plans, force)  # decide hits first: no scoring, no weights
+        if jobs > 1 and not stored:
             _train_evaluators_side_by_side(plans, jobs, progress)
-        evaluators = [_evaluators(p, train=bool(p.jobs()), progress=progress) for p in plans]
+        evaluators = [_evaluators(p, train=bool(p.jobs()), progress=progress, weights=not stored)
+                      for p in plans]
         for p in plans:
             if p.jobs():
                 _gate(p)
@@ -296,7 +321,7 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
             rec.add_values(values)
             trainings = collect_trainings(p, reports)
             rec.write_trainings(trainings)
-            summary = summarise(p, values, trainings)
+            summary = _summary(p, values, trainings)
             summary["evaluators"] = ev
             summary["footer"] = _footer(p, ev, rec.run_id, summary.get("budgets"), trainings)
             summary["counts"] = counts
@@ -304,6 +329,36 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
             rec.finish()
             out.append((p, summary, rec.run_id))
     return out
+
+
+def _summary(plan, values: list[dict], trainings: list[dict]) -> dict:
+    """:func:`repro.engine.tables.summarise` of a run, stored under a key made of everything
+    it reads: the spec's hash, the resolved configuration, every row's status and every job's
+    key (which cover the method configs the budgets read), the raw values, the training
+    records and the source of ``repro.engine.tables`` (with the statistics it imports).  A
+    rerun whose values are all cache hits reads the summary instead of bootstrapping every
+    cell and sampling every claim's posterior again (docs/engine.md, "Fixed costs")."""
+    from repro.engine.source_hash import source_hash
+    from repro.engine.tables import summarise
+    from repro.keys import content_key, sha256_bytes
+    from repro.store.atomic import jsonable
+    from repro.store.objects import Store
+
+    jobs = [j.key() for rp in plan.rows for js in (*rp.train.values(), *rp.measures.values())
+            for j in js]
+    inputs = json.dumps({"spec": plan.spec.spec_hash, "config": plan.config, "jobs": jobs,
+                         "rows": [[rp.row_id, rp.status, rp.reason] for rp in plan.rows],
+                         "bands": [b.reason for b in plan.bands], "values": values,
+                         "trainings": trainings}, sort_keys=True)  # NaN allowed, unlike keys
+    key = content_key({"schema": 1, "object": "summary",
+                       "inputs": sha256_bytes(inputs.encode()),
+                       "source": source_hash("repro.engine.tables")})
+
+    def compute(out: Path) -> None:  # the run record's JSON form, in summarise's key order
+        (out / "summary.json").write_text(json.dumps(jsonable(summarise(plan, values,
+                                                                        trainings))))
+
+    return Store().compute(key, "summary", compute).read_json("summary.json")
 
 
 class _FanOut:

@@ -95,14 +95,35 @@ def _with_parents(name: str) -> list[str]:
 
 
 @lru_cache(maxsize=None)
+def _module_entry(name: str) -> tuple[str, tuple[str, ...]] | None:
+    """(sha256 of module ``name``'s file or ``"namespace"``, every module name its imports may
+    refer to), or None when it cannot be found.  Read and parsed once per process: a table's
+    plan hashes a dozen roots (steps, methods, protocols) whose closures share most modules."""
+    spec = _find_spec(name)
+    if spec is None:
+        return None  # `from pkg import attr` where attr is not a submodule
+    path = _module_file(spec)
+    if path is None:
+        return "namespace", ()
+    digest = sha256_file(path)
+    if path.suffix != ".py":
+        return digest, ()
+    try:
+        tree = ast.parse(path.read_bytes(), filename=str(path))
+    except SyntaxError:
+        return digest, ()  # the bytes are hashed; importing it will fail loudly anyway
+    is_pkg = spec.submodule_search_locations is not None
+    return digest, tuple(sorted(_imported_names(tree, name, is_pkg)))
+
+
+@lru_cache(maxsize=None)
 def source_manifest(module_name: str) -> tuple[tuple[str, str], ...]:
     """Sorted ``(module name, sha256 of its file)`` pairs covered by :func:`source_hash`.
 
     Namespace packages (no file) appear with the digest ``"namespace"``.
     Raises :class:`~repro.errors.ConfigError` when ``module_name`` cannot be found.
     """
-    root_spec = _find_spec(module_name)
-    if root_spec is None:
+    if _find_spec(module_name) is None:
         raise ConfigError(f"cannot find module {module_name!r} (a job's implementation)")
     top = module_name.split(".")[0]
     scope = {ROOT_PACKAGE, top}
@@ -116,22 +137,11 @@ def source_manifest(module_name: str) -> tuple[tuple[str, str], ...]:
         name = todo.pop()
         if name in seen:
             continue
-        spec = root_spec if name == module_name else _find_spec(name)
-        if spec is None:
-            continue  # `from pkg import attr` where attr is not a submodule
-        path = _module_file(spec)
-        if path is None:
-            seen[name] = "namespace"
+        entry = _module_entry(name)
+        if entry is None:
             continue
-        seen[name] = sha256_file(path)
-        if path.suffix != ".py":
-            continue
-        try:
-            tree = ast.parse(path.read_bytes(), filename=str(path))
-        except SyntaxError:
-            continue  # the bytes are hashed; importing it will fail loudly anyway
-        is_pkg = spec.submodule_search_locations is not None
-        for imp in _imported_names(tree, name, is_pkg):
+        seen[name], imports = entry
+        for imp in imports:
             if in_scope(imp):
                 todo.extend(n for n in _with_parents(imp) if n not in seen)
     return tuple(sorted(seen.items()))
@@ -155,5 +165,6 @@ def source_hash(module_name: str, *more: str) -> str:
 
 def clear_source_cache() -> None:
     """Forget cached hashes (tests; long-lived processes that reload code)."""
+    _module_entry.cache_clear()
     source_manifest.cache_clear()
     source_hash.cache_clear()

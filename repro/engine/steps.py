@@ -52,17 +52,19 @@ def evaluator_clipset(protocol, clipset):
     return clipset if split is None else split(clipset)
 
 
-def evaluator_for(cfg: dict):
+def evaluator_for(cfg: dict, weights: bool = True):
     """The evaluator of a band: ``cfg`` holds ``dataset``, ``protocol``, ``protocol_params`` and
     ``evaluator`` {dataset, kind, scale, seed[, heading][, settings]} (``settings``: the
     protocol's overrides of the scale's evaluator settings, e.g. ODMO's window).  Trained once,
-    then loaded from the store."""
+    then loaded from the store (``weights=False``: only its stored record when there is one,
+    :func:`repro.eval.provider.get_evaluator`)."""
     from repro.eval.provider import get_evaluator
 
     ev = cfg["evaluator"]
     clips = evaluator_clipset(_protocol(cfg), clipset(cfg["dataset"]))
     return get_evaluator(ev["dataset"], ev["kind"], ev["scale"], ev["seed"], clipset=clips,
-                         heading=ev.get("heading"), overrides=ev.get("settings"))
+                         heading=ev.get("heading"), overrides=ev.get("settings"),
+                         weights=weights)
 
 
 def training_items(cfg: dict, clips, item_kind: str = "actions"):

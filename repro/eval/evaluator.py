@@ -24,7 +24,6 @@ from typing import Any
 import numpy as np
 
 from repro.errors import DataError
-from repro.eval.features import to_model_input
 from repro.eval.settings import EvaluatorSettings
 from repro.keys import content_key
 
@@ -126,6 +125,8 @@ class Evaluator:
             raise DataError(
                 f"evaluator {self.kind} expects joints of shape (N, T, {len(self.joint_names)}, 3) "
                 f"({self.dataset} joint order), got {tuple(j.shape)}")
+        from repro.eval.features import to_model_input  # torch: only when scoring
+
         x = to_model_input(j, lengths, heading=self.settings.heading, facing=self.facing)
         n, t = x.shape[:2]
         lens = torch.full((n,), t, dtype=torch.long) if lengths is None else \
@@ -137,6 +138,9 @@ class Evaluator:
 
         from repro.seeding import torch_generator
 
+        if self.module is None:  # loaded with weights=False: a record, not a network
+            raise RuntimeError(f"evaluator {self.fingerprint[:12]} was loaded without its "
+                               "weights; load it with weights=True to score")
         x, lens = self._inputs(joints, lengths)
         n = x.shape[0]
         h0 = None
@@ -201,12 +205,13 @@ class Evaluator:
         atomic_write_bytes(out / META_FILE, json.dumps(meta, indent=2, sort_keys=True).encode())
 
     @classmethod
-    def load(cls, path: str | Path) -> "Evaluator":
-        """Load a stored evaluator; the weights are re-hashed and must match the record."""
-        import torch
+    def load(cls, path: str | Path, *, weights: bool = True) -> "Evaluator":
+        """Load a stored evaluator; the weights are re-hashed and must match the record.
 
-        from repro.eval.classifiers import build_module
-
+        With ``weights=False`` only ``evaluator.json`` is read (no torch, no weights file;
+        :attr:`module` is None): enough for :meth:`describe`, :meth:`identity` and the
+        recorded test statistics, which is all a run whose every measurement is already
+        stored needs (docs/engine.md, "Fixed costs"); inference on it raises."""
         path = Path(path)
         meta_file = path / META_FILE
         try:
@@ -214,14 +219,21 @@ class Evaluator:
         except (OSError, json.JSONDecodeError) as e:
             raise DataError(f"cannot read evaluator record: {e}", meta_file) from None
         settings = EvaluatorSettings.model_validate(meta["settings"])
-        module = build_module(meta["kind"], 3 * len(meta["joint_names"]), len(meta["label_names"]), settings)
-        state = torch.load(path / WEIGHTS_FILE, map_location="cpu", weights_only=True)
-        sha = weights_sha256(state)
-        if sha != meta["weights_sha256"]:
-            raise DataError("stored weights do not match their recorded hash (corrupt store object)",
-                            path / WEIGHTS_FILE)
-        module.load_state_dict(state)
-        module.eval()
+        module, sha = None, meta["weights_sha256"]
+        if weights:
+            import torch
+
+            from repro.eval.classifiers import build_module
+
+            module = build_module(meta["kind"], 3 * len(meta["joint_names"]),
+                                  len(meta["label_names"]), settings)
+            state = torch.load(path / WEIGHTS_FILE, map_location="cpu", weights_only=True)
+            sha = weights_sha256(state)
+            if sha != meta["weights_sha256"]:
+                raise DataError("stored weights do not match their recorded hash (corrupt store "
+                                "object)", path / WEIGHTS_FILE)
+            module.load_state_dict(state)
+            module.eval()
         facing = meta.get("facing")
         return cls(kind=meta["kind"], settings=settings, module=module,
                    joint_names=tuple(meta["joint_names"]), label_names=tuple(meta["label_names"]),

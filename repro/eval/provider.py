@@ -65,7 +65,7 @@ def get_evaluator(dataset: str, kind: str = "a2m_gru", scale: str = "medium", se
                   heading: str | None = None, overrides: dict | None = None,
                   clipset=None, settings: EvaluatorSettings | None = None,
                   on_epoch: Callable[[int, dict], None] | None = None,
-                  force: bool = False) -> Evaluator:
+                  force: bool = False, weights: bool = True) -> Evaluator:
     """The evaluator of ``kind`` for ``dataset`` at ``scale`` (trained on the real train split
     with training seed ``seed``), from the store or trained now.
 
@@ -73,7 +73,10 @@ def get_evaluator(dataset: str, kind: str = "a2m_gru", scale: str = "medium", se
     protocols that can change an action's heading (chained multi-action sequences, facing
     normalisation) ask for ``"remove"`` or ``"yaw_augment"``.  ``overrides`` is merged over the
     scale's evaluator settings (e.g. ``{"hidden_init": "random"}`` for reference fidelity).
-    ``on_epoch(epoch, record)`` reports training progress; ``force`` retrains even when stored."""
+    ``on_epoch(epoch, record)`` reports training progress; ``force`` retrains even when stored.
+    ``weights=False``: when the evaluator is stored, only its record
+    (:meth:`Evaluator.load` without weights: describe, fingerprint, test statistics), for a
+    run that scores nothing; one not stored yet is trained and loaded as usual."""
     from repro.store.objects import Store
 
     check_kind(kind)
@@ -93,6 +96,9 @@ def get_evaluator(dataset: str, kind: str = "a2m_gru", scale: str = "medium", se
         if key in _LOADED:
             return _LOADED[key]
         obj = store.get(key)
+        if obj is not None and not weights:  # a record only: not kept as the loaded one
+            return _finish(Evaluator.load(obj.path, weights=False), settings, key, hit=True,
+                           keep=False)
         if obj is not None:
             return _finish(Evaluator.load(obj.path), settings, key, hit=True)
     if clipset is None:
@@ -115,11 +121,13 @@ def get_evaluator(dataset: str, kind: str = "a2m_gru", scale: str = "medium", se
     return _finish(Evaluator.load(obj.path), settings, key, hit=bool(obj.hit))
 
 
-def _finish(ev: Evaluator, settings: EvaluatorSettings, key: str, *, hit: bool) -> Evaluator:
+def _finish(ev: Evaluator, settings: EvaluatorSettings, key: str, *, hit: bool,
+            keep: bool = True) -> Evaluator:
     ev.settings = settings  # identical except for the real-row settings, which are not keyed
     ev.meta["store_key"] = key
     ev.meta["store_hit"] = hit
-    _LOADED[key] = ev
+    if keep:
+        _LOADED[key] = ev
     return ev
 
 

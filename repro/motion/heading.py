@@ -35,7 +35,6 @@ import re
 from dataclasses import dataclass
 
 import numpy as np
-import roma
 import torch
 
 from repro.motion.skeleton import Skeleton
@@ -243,6 +242,8 @@ def yaw_matrix(angle) -> torch.Tensor:
         a = a.to(torch.get_default_dtype())
     ey = torch.zeros(a.shape + (3,), dtype=a.dtype, device=a.device)
     ey[..., 1] = 1.0
+    import roma  # on first use: it imports torch._dynamo (rotations._roma)
+
     return roma.rotvec_to_rotmat(ey * a[..., None])
 
 

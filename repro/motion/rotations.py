@@ -30,7 +30,6 @@ import functools
 from typing import Callable
 
 import numpy as np
-import roma
 import torch
 
 __all__ = [
@@ -41,6 +40,14 @@ __all__ = [
 
 #: Names accepted by :func:`convert`, with the size of their trailing shape.
 REPRESENTATIONS = {"matrix": (3, 3), "6d": (6,), "quat": (4,), "axis_angle": (3,), "euler": (3,)}
+
+
+def _roma():
+    """roma, imported on first use: importing it loads ``torch._dynamo`` (seconds), which a
+    process that converts no rotation (``repro plan``, a fully cached rerun) need not pay."""
+    import roma
+
+    return roma
 
 
 def _numpy_compatible(fn: Callable) -> Callable:
@@ -82,41 +89,41 @@ def sixd_to_matrix(d6):
     output of :func:`matrix_to_6d` it returns the original matrix (to rounding).
     """
     _check_tail(d6, (6,), "6D rotations")
-    return roma.special_gramschmidt(d6.reshape(d6.shape[:-1] + (3, 2)))
+    return _roma().special_gramschmidt(d6.reshape(d6.shape[:-1] + (3, 2)))
 
 
 @_numpy_compatible
 def quat_to_matrix(q):
     """(..., 4) quaternions, ``xyzw`` → (..., 3, 3).  Inputs are normalised first."""
     _check_tail(q, (4,), "quaternions")
-    return roma.unitquat_to_rotmat(roma.quat_normalize(q))
+    return _roma().unitquat_to_rotmat(_roma().quat_normalize(q))
 
 
 @_numpy_compatible
 def matrix_to_quat(R):
     """(..., 3, 3) → (..., 4) unit quaternions, ``xyzw``."""
     _check_tail(R, (3, 3), "rotation matrices")
-    return roma.rotmat_to_unitquat(R)
+    return _roma().rotmat_to_unitquat(R)
 
 
 @_numpy_compatible
 def axis_angle_to_matrix(v):
     """(..., 3) rotation vectors (axis × angle, radians) → (..., 3, 3)."""
     _check_tail(v, (3,), "rotation vectors")
-    return roma.rotvec_to_rotmat(v)
+    return _roma().rotvec_to_rotmat(v)
 
 
 @_numpy_compatible
 def matrix_to_axis_angle(R):
     """(..., 3, 3) → (..., 3) rotation vectors (angle in [0, π])."""
     _check_tail(R, (3, 3), "rotation matrices")
-    return roma.rotmat_to_rotvec(R)
+    return _roma().rotmat_to_rotvec(R)
 
 
 @_numpy_compatible
 def sixd_to_quat(d6):
     """(..., 6) → (..., 4) ``xyzw`` (via Gram-Schmidt, then roma)."""
-    return roma.rotmat_to_unitquat(sixd_to_matrix(d6))
+    return _roma().rotmat_to_unitquat(sixd_to_matrix(d6))
 
 
 @_numpy_compatible
@@ -142,14 +149,14 @@ def euler_convention(order: str, intrinsic: bool = True) -> str:
 def euler_to_matrix(angles, order: str, *, intrinsic: bool = True, degrees: bool = False):
     """(..., 3) Euler angles, in the order of ``order``'s letters → (..., 3, 3)."""
     _check_tail(angles, (3,), "Euler angles")
-    return roma.euler_to_rotmat(euler_convention(order, intrinsic), angles, degrees=degrees)
+    return _roma().euler_to_rotmat(euler_convention(order, intrinsic), angles, degrees=degrees)
 
 
 @_numpy_compatible
 def matrix_to_euler(R, order: str, *, intrinsic: bool = True, degrees: bool = False):
     """(..., 3, 3) → (..., 3) Euler angles (roma's ranges; at gimbal lock the third is 0)."""
     _check_tail(R, (3, 3), "rotation matrices")
-    return roma.rotmat_to_euler(euler_convention(order, intrinsic), R, degrees=degrees)
+    return _roma().rotmat_to_euler(euler_convention(order, intrinsic), R, degrees=degrees)
 
 
 def _to_matrix(x, src: str, order, intrinsic, degrees):
@@ -196,4 +203,4 @@ def random_rotmats(shape: tuple[int, ...] | int, generator: torch.Generator,
                    dtype: torch.dtype = torch.float32) -> torch.Tensor:
     """Uniformly random rotation matrices (``shape + (3, 3)``) from an explicit generator."""
     size = (shape,) if isinstance(shape, int) else tuple(shape)
-    return roma.random_rotmat(size, dtype=dtype, generator=generator)
+    return _roma().random_rotmat(size, dtype=dtype, generator=generator)
