@@ -110,7 +110,7 @@ def job_device(ctx):
     prepared by :func:`repro.seeding.prepare_device` (CUDA determinism, in one place)."""
     from repro.seeding import prepare_device
 
-    return prepare_device(getattr(ctx.job, "device", None))
+    return prepare_device(getattr(getattr(ctx, "job", None), "device", None))
 
 
 def train_method(ctx) -> None:
