@@ -23,6 +23,7 @@ import os
 import platform
 import time
 
+import repro  # noqa: F401,E402  (pins the kernel paths before torch / numpy load: repro/kernels.py)
 import numpy as np
 
 

@@ -35,6 +35,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import repro  # noqa: F401,E402  (pins the kernel paths before torch / numpy load: repro/kernels.py)
 import torch  # noqa: E402
 
 #: per protocol: how many actions one ``generate`` job samples, from its resolved parameters

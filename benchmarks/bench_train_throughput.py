@@ -45,6 +45,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+import repro  # noqa: F401,E402  (pins the kernel paths before torch / numpy load: repro/kernels.py)
 import torch
 from _before import BeforeUnavailable, import_before, swapped  # after the path entry
 

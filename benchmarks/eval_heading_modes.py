@@ -21,6 +21,7 @@ import argparse
 import json
 import sys
 
+import repro  # noqa: F401,E402  (pins the kernel paths before torch / numpy load: repro/kernels.py)
 import numpy as np
 
 

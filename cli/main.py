@@ -9,10 +9,17 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import re
 import sys
 
-from repro import __version__
+# `--fast-kernels` must reach the environment before `import repro` pins the kernel paths
+# (repro/kernels.py): numeric libraries read them once, at load.  The option itself is
+# declared (and documented) on the commands that compute.
+if "--fast-kernels" in sys.argv[1:]:
+    os.environ["REPRO_FAST_KERNELS"] = "1"
+
+from repro import __version__  # noqa: E402
 
 # Command-group modules in help order.  A module not (yet) present is skipped, so the command
 # grows as the library does; a module that is present but broken fails loudly.
@@ -103,6 +110,16 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     from repro.errors import ReproError
 
+    fast_before = os.environ.get("REPRO_FAST_KERNELS")
+    if getattr(args, "fast_kernels", False) and fast_before != "1":
+        # main(argv) called in a process that imported repro (hence pinned torch / numpy)
+        # without the flag: its jobs would compute pinned but be keyed and recorded as fast
+        if "torch" in sys.modules or "numpy" in sys.modules:
+            print("repro: error: --fast-kernels must be given when the process starts (the "
+                  "kernel paths are fixed when torch and numpy load); run `repro ... "
+                  "--fast-kernels` or set REPRO_FAST_KERNELS=1", file=sys.stderr)
+            return 2
+        os.environ["REPRO_FAST_KERNELS"] = "1"
     try:
         _dataset_specs(args)
         rc = func(args)
@@ -113,11 +130,14 @@ def main(argv: list[str] | None = None) -> int:
         print("repro: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:  # `repro ... | head`: the reader left; say nothing more
-        import os
-
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
         return 0
+    finally:
+        if fast_before is None:
+            os.environ.pop("REPRO_FAST_KERNELS", None)
+        else:
+            os.environ["REPRO_FAST_KERNELS"] = fast_before
     return int(rc or 0)
 
 

@@ -168,7 +168,8 @@ def test_key_is_order_invariant_and_sensitive_to_every_part(jobs_module):
     assert len(keys) == len(variants) + 1
     parts = j.key_parts()
     assert set(parts) == {"schema", "kind", "impl", "source", "config", "inputs",
-                          "fingerprints", "seed", "threads", "plugins"}
+                          "fingerprints", "seed", "threads", "plugins", "kernels"}
+    assert parts["kernels"] == {"mode": "pinned", "pin": "x86-64-avx2-portable", "version": 1}
     assert parts["inputs"] == [prep.key()]
     # configs are copied: mutating the caller's dict changes nothing
     cfg = {"lr": 0.1}

@@ -49,6 +49,8 @@ MODES = {
     "repro eval real --dataset bandai2 --json": "slow",
     "repro run marionette/table1 --scale quick --executor ray": "slow",
     "repro runs export latest --mlflow mlruns/": "slow",
+    "make ci-tables": "slow",
+    "repro run marionette/table1 --scale quick --fast-kernels": "slow",
     # the lab example: one sequence (each step needs the one before), tests below
     ".venv/bin/python docs/examples/lab_example.py build/lab": "lab",
     "repro data prepare build/lab/lab.toml": "lab",

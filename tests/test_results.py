@@ -315,3 +315,28 @@ def test_odmo_table3_has_the_style_columns():
 
 def test_results_page_prints_the_odmo_records(tmp_path, monkeypatch):
     _page_prints(OD_ALL, tmp_path, monkeypatch)
+
+
+PIN_HISTORY = (_records("quick-before-pin") + _records("multiact-quick-before-pin")
+               + _records("odmo-quick-before-pin"))
+
+
+@pytest.mark.parametrize("path", PIN_HISTORY, ids=[p.parent.name + "/" + p.name
+                                                   for p in PIN_HISTORY])
+def test_quick_records_before_the_kernel_pin_are_their_values(path):
+    """The quick records CI compared with until issue 25 (made on an Intel Xeon without the
+    kernel pin): kept as history, each consistent with its own raw values, none made under
+    the pin."""
+    rj, summary = _run(path)
+    assert rj["status"] == "FINISHED" and rj["scale"] == "quick"
+    assert "kernels" not in (rj.get("env") or {})
+    _cells_are_their_values(path, summary, 3)
+
+
+def test_current_quick_records_were_made_under_the_pin():
+    for path in QUICK + MA_RUNS["quick"] + OD_RUNS["quick"]:
+        rj, _ = _run(path)
+        k = rj["env"]["kernels"]
+        assert k["mode"] == "pinned" and k["version"] >= 1, rj["run_id"]
+        base = load_baseline(repo_root() / "tables" / "baselines" / "quick", rj["table"])
+        assert base["kernels"] == k  # the baseline names the run's pin and CPU

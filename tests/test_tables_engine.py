@@ -156,6 +156,7 @@ def test_a_cached_rerun_reads_no_evaluator_weights(tiny_tables, _repro_home, mon
     assert set(s2["counts"]) == {"hit"}
     assert s2["evaluators"] == s1["evaluators"] and s2["cells"] == s1["cells"]
     assert s2["footer"][:-1] == s1["footer"][:-1]  # the last line names each run's id
+    assert any(ln.startswith("Kernels: pinned x86-64-avx2-portable") for ln in s1["footer"])
     assert list(s2["rows"]) == ["real", "nearest_clip"]  # the stored summary keeps row order
     (_, line), = s2["evaluators"].items()
     stored = json.loads(next((_repro_home / "store" / "objects").rglob("evaluator.json"))

@@ -80,8 +80,14 @@ def _environment() -> dict:
 
     import torch
 
+    from repro import kernels
+
+    kernels.apply_runtime()  # what a job of this process would compute under
+    st = kernels.state()
+    bad = [] if kernels.fast_requested() else kernels.pinned_in_force(st)
     return {"python": platform.python_version(), "torch": torch.__version__,
-            "threads": torch.get_num_threads(), "cuda": bool(torch.cuda.is_available())}
+            "threads": torch.get_num_threads(), "cuda": bool(torch.cuda.is_available()),
+            "kernels": {**kernels.record(), "in_force": st, "not_in_force": bad}}
 
 
 def _doctor(args) -> int:
@@ -114,4 +120,9 @@ def _doctor(args) -> int:
               + (f"\n{'':<11}missing: {m['missing']}" if m["missing"] else ""))
     print(f"environment: python {env['python']}, torch {env['torch']}, "
           f"{env['threads']} threads, cuda {'yes' if env['cuda'] else 'no'}")
+    from repro.kernels import describe
+
+    k = env["kernels"]
+    print(f"kernels: {describe(k)}"
+          + (f"; NOT in force: {'; '.join(k['not_in_force'])}" if k["not_in_force"] else ""))
     return 0

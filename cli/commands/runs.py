@@ -174,6 +174,7 @@ def _show(args: argparse.Namespace) -> int:
         ("device / dtype / threads",
          f"{env.get('device')} / {env.get('dtype')} / {env.get('threads')}"),
         ("host", f"{env.get('host')} (pid {env.get('pid')})"),
+        ("kernels", _kernels_line(env.get("kernels"))),
         ("packages", ", ".join(f"{k} {v}" for k, v in (run.get("packages") or {}).items())),
         ("command", " ".join(run.get("command") or [])),
     ]
@@ -225,6 +226,12 @@ def _show(args: argparse.Namespace) -> int:
     if rec.summary is not None:
         con.print(f"summary: {rec.path / 'summary.json'}")
     return 0
+
+
+def _kernels_line(rec) -> str:
+    from repro.kernels import describe
+
+    return describe(rec)
 
 
 def diff_rows(records) -> list[dict[str, Any]]:

@@ -68,6 +68,26 @@ def _on_device(computes: bool):
     return wrap
 
 
+def _positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    import math
+
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(v) or v <= 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return v
+
+
+def _fast_kernels_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--fast-kernels", action="store_true",
+                   help="keep this CPU's fastest kernel paths instead of the portable pin "
+                   "(job keys and the run record say so; verify refuses such runs against "
+                   "pinned baselines; docs/engine.md)")
+
+
 def _retrain_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--retrain", action="store_true",
                    help="train one model per replicate (training seed = replicate seed), so the "
@@ -111,6 +131,7 @@ def register(sub) -> None:
     p.add_argument("--format", default="term", type=output_format,
                    help="term | md | latex | html | json | csv")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    _fast_kernels_option(p)
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("sweep", help="rerun a table at several training budgets or with "
@@ -131,6 +152,7 @@ def register(sub) -> None:
     p.add_argument("--format", default="term", choices=("term", "md", "json"),
                    help="term | md | json (default term)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    _fast_kernels_option(p)
     p.set_defaults(func=cmd_sweep)
 
     p = sub.add_parser("show", help="print a table from its newest run (no computing)")
@@ -145,6 +167,7 @@ def register(sub) -> None:
     p.add_argument("table")
     _common(p)
     p.add_argument("--format", default="term", type=output_format)
+    _fast_kernels_option(p)
     p.set_defaults(func=cmd_rescore)
 
     p = sub.add_parser("verify", help="compare the newest run with a committed baseline (exit 1 on drift)")
@@ -152,6 +175,11 @@ def register(sub) -> None:
     _common(p)
     p.add_argument("--baseline", required=True, help="baseline folder, e.g. tables/baselines/quick")
     p.add_argument("--update", action="store_true", help="write the baseline from the newest run")
+    p.add_argument("--tolerance", type=_positive_float, default=None, metavar="K",
+                   help="compare across hosts or unpinned runs: a cell passes within K x the "
+                   "spread of training seeds (the newest run's interval when made with "
+                   "--retrain; else sampling spread), verdicts one step apart pass; off by "
+                   "default (docs/engine.md)")
     p.set_defaults(func=cmd_verify)
 
 
@@ -309,6 +337,7 @@ def cmd_verify(args) -> int:
     from repro.engine.baselines import write_baseline
     from repro.engine.runner import _scale, _spec, latest_run, verify_table
     from repro.errors import ConfigError
+    from repro.store.runs import read_run_json
 
     failed = False
     for name in args.tables:
@@ -320,11 +349,19 @@ def cmd_verify(args) -> int:
             if path is None:
                 raise ConfigError(f"no finished run of {spec.id} at scale {sc.name} to write a baseline from")
             summary = _json.loads((path / "summary.json").read_text())
+            kernels = (read_run_json(path).get("env") or {}).get("kernels")
+            if (kernels or {}).get("mode") != "pinned":
+                raise ConfigError(f"{spec.id}: run {path.name} was not made under the pinned "
+                                  "kernel paths; a committed baseline must be (rerun without "
+                                  "--fast-kernels)")
             out = write_baseline(Path(args.baseline), summary, scale=sc.name, dataset=ds,
-                                 run_id=path.name)
+                                 run_id=path.name, kernels=kernels)
             print(f"repro: wrote {out}")
             continue
-        problems = verify_table(name, args.baseline, scale=args.scale, dataset=args.dataset)
+        problems, notes = verify_table(name, args.baseline, scale=args.scale,
+                                       dataset=args.dataset, tolerance=args.tolerance)
+        for line in notes:
+            print(f"repro: {spec.id}: {line}")
         if problems:
             failed = True
             print(f"repro: {spec.id}: {len(problems)} problem(s) against the baseline:")

@@ -19,6 +19,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import repro  # noqa: F401,E402  (pins the kernel paths before torch / numpy load: repro/kernels.py)
 import numpy as np
 
 #: bandai2's joints -> this lab's names (the toes are not kept)

@@ -11,6 +11,20 @@ and each claim's verdict.  ``repro verify`` fails (exit 1) when
 - a cell appears or disappears;
 - the baseline file was edited by hand: it carries the content key of its own cells and
   claims, and a mismatch is reported as such.
+
+Hosts (issue 25): a baseline names the CPU and the kernel paths it was made with (``kernels``,
+:func:`repro.kernels.record`; outside the checksum, like ``run``).  Under the pin every x86-64
+CPU with AVX2 computes the same bytes, so the bands above stay tight.  :func:`host_lines` says
+which hosts and kernel paths a comparison puts side by side; :func:`refusal` refuses to compare
+a run made with ``--fast-kernels`` (or before pinning) with a pinned baseline; when cells drift
+and the hosts differ, :func:`compare`'s caller says so (:func:`host_note`).
+
+``tolerance`` (``repro verify --tolerance K``, off by default) is for comparing across hosts or
+kernel paths that are *not* bitwise equal (an unpinned run, another architecture): a cell then
+passes when ``|now − base| ≤ K · s``, with ``s`` the half-width of the *current* run's interval
+when that run was made with ``--retrain`` (its interval then holds the spread of training
+seeds), else the larger of the two runs' half-widths (sampling spread only: weaker, and said so);
+a verdict that moves by one step (supported ↔ inconclusive) is then a note, not a failure.
 """
 
 from __future__ import annotations
@@ -22,7 +36,7 @@ from pathlib import Path
 from repro.errors import DataError, MissingDataError
 from repro.keys import content_key
 
-SCHEMA = 1
+SCHEMA = 1  # 1: cells, claims, checksum; ``kernels`` (issue 25) is optional metadata
 K_HALFWIDTH = 1.0
 REL_FLOOR = 0.02
 ABS_FLOOR = 1e-9
@@ -33,7 +47,8 @@ def baseline_path(root: Path, table: str) -> Path:
     return Path(root) / paper / f"{name}.json"
 
 
-def make_baseline(summary: dict, *, scale: str, dataset: str, run_id: str) -> dict:
+def make_baseline(summary: dict, *, scale: str, dataset: str, run_id: str,
+                  kernels: dict | None = None) -> dict:
     cells = {}
     for row, cols in sorted(summary.get("cells", {}).items()):
         for col, s in sorted(cols.items()):
@@ -42,7 +57,7 @@ def make_baseline(summary: dict, *, scale: str, dataset: str, run_id: str) -> di
     claims = {c["id"]: c["verdict"] for c in summary.get("claims", [])}
     body = {"cells": cells, "claims": claims}
     return {"schema": SCHEMA, "table": summary["table"], "scale": scale, "dataset": dataset,
-            "run": run_id, "checksum": content_key(body), **body}
+            "run": run_id, "kernels": kernels, "checksum": content_key(body), **body}
 
 
 def write_baseline(root: Path, summary: dict, **meta) -> Path:
@@ -70,8 +85,71 @@ def load_baseline(root: Path, table: str) -> dict:
         raise DataError(f"malformed baseline JSON ({e.msg})", path, e.lineno) from None
 
 
-def compare(base: dict, summary: dict) -> list[str]:
-    """Problems of ``summary`` against ``base`` (empty when the run matches)."""
+def host_lines(base: dict, run_kernels: dict | None) -> list[str]:
+    """Two lines naming the baseline's and this run's CPU and kernel paths."""
+    from repro.kernels import describe
+
+    return [f"baseline: {describe(base.get('kernels'))}",
+            f"this run: {describe(run_kernels)}"]
+
+
+def refusal(base: dict, run_kernels: dict | None) -> str | None:
+    """Why a run cannot be compared with ``base`` at all (None when it can): a pinned baseline
+    and a run made unpinned (``--fast-kernels``) or before pinning existed."""
+    bk, rk = base.get("kernels") or {}, run_kernels or {}
+    if bk.get("mode") == "pinned" and rk.get("mode") != "pinned":
+        why = "with --fast-kernels" if rk.get("mode") == "fast" else "before kernel pinning"
+        return (f"the run was made {why} and the baseline {base.get('_path', '')} under the "
+                f"pinned kernel paths: their numbers are not comparable; rerun without "
+                f"--fast-kernels (or compare by the spread of training seeds: --tolerance)")
+    if bk.get("mode") == "pinned" and (bk.get("pin"), bk.get("version")) != (rk.get("pin"),
+                                                                          rk.get("version")):
+        return (f"the run was made under kernel pin {rk.get('pin')} v{rk.get('version')} and "
+                f"the baseline {base.get('_path', '')} under {bk.get('pin')} "
+                f"v{bk.get('version')}: remake the baselines with this code (make baselines)")
+    return None
+
+
+def host_note(base: dict, run_kernels: dict | None, *, drift: bool = True) -> str | None:
+    """A line saying that the host differs (None when the CPUs match or are unknown); with
+    ``drift`` (cells or verdicts moved) it says what that means."""
+    bk, rk = base.get("kernels") or {}, run_kernels or {}
+    bh, rh = bk.get("host") or {}, rk.get("host") or {}
+    keys = ("vendor", "model", "isa")
+    if not bh or not rh or all(bh.get(k) == rh.get(k) for k in keys):
+        return None
+    head = (f"the host differs (baseline: {bh.get('model')}, {bh.get('vendor')}, "
+            f"{bh.get('isa')}; now: {rh.get('model')}, {rh.get('vendor')}, {rh.get('isa')})")
+    if not drift:
+        return head + "; every cell and verdict matches"
+    same_pin = (bk.get("mode") == rk.get("mode") == "pinned"
+                and bk.get("version") == rk.get("version"))
+    tail = ("both pinned to the same kernel paths, so a drift is a code or data change or a "
+            "kernel path the pin does not cover (docs/engine.md)" if same_pin else
+            "the kernel paths differ, so last-bit differences grow through training: compare "
+            "with --tolerance, or make both runs pinned")
+    return f"{head}: {tail}"
+
+
+def _step(verdict: str | None) -> int | None:
+    """A verdict's place on supported (2) > inconclusive (1) > contradicted / not reproduced
+    (0); None for anything else (not run, failed)."""
+    v = str(verdict or "")
+    if v.startswith("supported"):
+        return 2
+    if v.startswith("inconclusive"):
+        return 1
+    if v.startswith(("contradicted", "not reproduced")):
+        return 0
+    return None
+
+
+def compare(base: dict, summary: dict, *, tolerance: float | None = None,
+            retrain: bool = False, notes: list[str] | None = None) -> list[str]:
+    """Problems of ``summary`` against ``base`` (empty when the run matches); with
+    ``tolerance`` the looser comparison of the module docstring (``retrain``: the current
+    run's intervals hold training-seed variance); what passes only by the tolerance is
+    appended to ``notes``."""
     problems = []
     body = {"cells": base.get("cells", {}), "claims": base.get("claims", {})}
     if content_key(body) != base.get("checksum"):
@@ -88,9 +166,19 @@ def compare(base: dict, summary: dict) -> list[str]:
             if b.get("lo") is not None and b.get("hi") is not None:
                 half = (b["hi"] - b["lo"]) / 2
             tol = max(K_HALFWIDTH * half, REL_FLOOR * abs(b["mean"]), ABS_FLOOR)
+            if tolerance is not None:
+                lo, hi = (got.get("bootstrap_percentile") or [None, None])
+                now_half = (hi - lo) / 2 if lo is not None and hi is not None else 0.0
+                spread = now_half if retrain else max(now_half, half)
+                tol = max(tol, float(tolerance) * spread)
             m = got["mean"]
             if m is None or not math.isfinite(m) or abs(m - b["mean"]) > tol:
                 problems.append(f"{row}/{col}: {m!r} is outside {b['mean']!r} ± {tol:.4g}")
+            elif tolerance is not None and notes is not None and m != b["mean"]:
+                strict = max(K_HALFWIDTH * half, REL_FLOOR * abs(b["mean"]), ABS_FLOOR)
+                if abs(m - b["mean"]) > strict:
+                    notes.append(f"{row}/{col}: {m!r} vs {b['mean']!r}: within the tolerance "
+                                 f"± {tol:.4g}, outside the strict band ± {strict:.4g}")
     for row, cols in now.items():
         for col in cols:
             if col not in body["cells"].get(row, {}):
@@ -98,5 +186,11 @@ def compare(base: dict, summary: dict) -> list[str]:
     for cid, v in body["claims"].items():
         got = next((c["verdict"] for c in summary.get("claims", []) if c["id"] == cid), None)
         if got != v:
+            if (tolerance is not None and None not in (_step(got), _step(v))
+                    and abs(_step(got) - _step(v)) <= 1):
+                if notes is not None:  # one step apart: passes under tolerance, said
+                    notes.append(f"claim {cid}: verdict {v!r} in the baseline, {got!r} now "
+                                 "(one step: within the tolerance)")
+                continue
             problems.append(f"claim {cid}: verdict {v!r} in the baseline, {got!r} now")
     return problems

@@ -189,8 +189,11 @@ def run_job(job: Job, key: str, inputs: tuple[StoredObject, ...], store: Store, 
             ) -> tuple[str, StoredObject]:
     """Run one job (inputs already resolved) and return ``(status, object)``, computing with
     the job's own ``threads`` when it declares them, else with ``threads`` (the executor's)."""
+    from repro.kernels import check as check_kernels
+
     fn = job.resolve()
     threads = job.threads or threads
+    check_kernels()  # the pin (or --fast-kernels) the job's key names is really in force
     logger, handler = _job_logger(store, job, key)
     try:
         with _thread_count(threads):

@@ -9,7 +9,7 @@ for one seed, sample, evaluate, ...).  Its key is :func:`repro.keys.content_key`
      "plugins": [module names loaded by name at run time],
      "config": {...resolved...}, "inputs": [input keys, in order],
      "fingerprints": {"dataset": ..., "evaluator": ...}, "seed": int | None,
-     "threads": int | None[, "device": {...}]}
+     "threads": int | None, "kernels": {...}[, "device": {...}]}
 
 Canonical JSON makes the key independent of dict order; the order of ``inputs`` is kept
 because the implementation receives them positionally.  ``label`` (display, ``plan --why``
@@ -29,6 +29,10 @@ table's jobs take it from the scale profile or ``--device``).  A CUDA job's key 
 ``"device"``: the device type with the CUDA determinism settings it computes under
 (:func:`repro.seeding.device_key`); a CPU job's key has no such entry, so it is what it was
 before jobs named a device.  The job implementation applies it (:func:`repro.seeding.prepare_device`).
+
+``kernels`` is the kernel paths the job computes with (:func:`repro.kernels.key`): the portable
+pin (any x86-64 CPU with AVX2 computes the same bytes), or under ``--fast-kernels`` the host's
+vendor and widest ISA, so a shared store never hands one kind's results to the other.
 
 A job with ``seed=None`` is cached only when it declares ``deterministic=True``; otherwise it
 (and everything downstream of it) is re-run every time and never published (unseeded work is
@@ -51,7 +55,7 @@ from typing import Any
 
 from repro.keys import canonical_json, content_key
 
-KEY_SCHEMA = 2  # 2: ``threads`` and ``plugins`` in the key
+KEY_SCHEMA = 3  # 2: ``threads`` and ``plugins`` in the key; 3: ``kernels``
 
 
 def _plain(obj: Any, what: str) -> Any:
@@ -145,11 +149,13 @@ class Job:
     def key_parts(self) -> dict[str, Any]:
         """What the key hashes (see the module docstring)."""
         from repro.engine.source_hash import source_hash
+        from repro.kernels import key as kernel_key
         from repro.seeding import device_key
 
         device = device_key(self.device)
         return {
             **({} if device is None else {"device": device}),
+            "kernels": kernel_key(),
             "schema": KEY_SCHEMA,
             "kind": self.kind,
             "impl": self.impl,

@@ -86,10 +86,14 @@ def _check_address(address: str) -> None:
 
 def _forwarded_env() -> dict[str, str]:
     """The driver's ``REPRO_*`` variables for the tasks, ``REPRO_HOME`` made absolute (data
-    sets and run bookkeeping are found through it on every node)."""
+    sets and run bookkeeping are found through it on every node), and the kernel pinning
+    (:func:`repro.kernels.worker_env`): a Ray worker process starts with the raylet's
+    environment, so the pin travels with the task and is checked there before it computes."""
+    from repro.kernels import worker_env
     from repro.paths import repro_home
 
     env = {k: v for k, v in os.environ.items() if k.startswith("REPRO_")}
+    env.update(worker_env())
     env["REPRO_HOME"] = str(Path(repro_home()).resolve())
     return env
 

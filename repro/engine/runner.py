@@ -84,7 +84,8 @@ def _group_lines(plan) -> list[str]:
 
 
 def _footer(plan, evaluators: dict[str, Any], run_id: str | None,
-            budgets: dict | None = None, trainings: list | None = None) -> list[str]:
+            budgets: dict | None = None, trainings: list | None = None,
+            kernels: dict | None = None) -> list[str]:
     from repro.engine.evidence import budgets_text
     from repro.stats.intervals import INTERVAL_DESCRIPTIONS
 
@@ -129,6 +130,12 @@ def _footer(plan, evaluators: dict[str, Any], run_id: str | None,
     for b in plan.bands:
         if not b.implemented:
             lines.append(f"Columns {', '.join(b.columns)}: {b.reason}.")
+    if run_id:
+        from repro.kernels import describe
+
+        lines.append(f"Kernels: {describe(kernels)}"
+                     + ("" if (kernels or {}).get("mode") == "pinned" else
+                        "; not comparable bit for bit with runs on other CPUs"))
     lines.append(f"Spec {spec.id} v{spec.version} [{spec.spec_hash[:12]}]"
                  + (f"; run {run_id}" if run_id else "; not run yet"))
     return lines
@@ -290,6 +297,10 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
     the graph's jobs run there; the evaluators and the gate still run here."""
     from contextlib import ExitStack
 
+    from repro.kernels import check as check_kernels
+
+    check_kernels()  # the evaluators and the gate compute in this process (repro/kernels.py)
+
     from repro.engine.tables import build_plan, collect_trainings, collect_values
     from repro.store.runs import RunRecorder
 
@@ -323,7 +334,8 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
             rec.write_trainings(trainings)
             summary = _summary(p, values, trainings)
             summary["evaluators"] = ev
-            summary["footer"] = _footer(p, ev, rec.run_id, summary.get("budgets"), trainings)
+            summary["footer"] = _footer(p, ev, rec.run_id, summary.get("budgets"), trainings,
+                                        kernels=(rec.data.get("env") or {}).get("kernels"))
             summary["counts"] = counts
             rec.write_summary(summary)
             rec.finish()
@@ -537,17 +549,45 @@ def plan_table(name: str, *, scale: str = "quick", dataset: str | None = None, w
 
 
 def verify_table(name: str, baseline_dir: str | Path, *, scale: str = "quick",
-                 dataset: str | None = None) -> list[str]:
-    """Compare the newest run of ``name`` with a committed baseline; returns the problems.
-    Baselines are made from runs without ``--retrain``, so only those are compared."""
-    from repro.engine.baselines import compare, load_baseline
+                 dataset: str | None = None, tolerance: float | None = None
+                 ) -> tuple[list[str], list[str]]:
+    """Compare the newest run of ``name`` with a committed baseline; returns ``(problems,
+    notes)``: the notes name both hosts and kernel paths and, when cells drift on another host,
+    say so (:mod:`repro.engine.baselines`).  Baselines are made from runs without
+    ``--retrain``, so only those are compared, except under ``tolerance``, where the newest run
+    with or without ``--retrain`` is compared (a ``--retrain`` run's intervals hold the spread
+    of training seeds; such a run is preferred).  A run made unpinned (or under another pin
+    version) against a pinned baseline is a ConfigError, and a note under ``tolerance``."""
+    from repro.engine.baselines import compare, host_lines, host_note, load_baseline, refusal
+    from repro.store.runs import read_run_json
 
     spec = _spec(name)
     sc = _scale(scale, dataset)
-    path = latest_run(spec.id, sc.name, dataset or sc.dataset_for(spec), retrain=False)
+    ds = dataset or sc.dataset_for(spec)
+    path = latest_run(spec.id, sc.name, ds, retrain=False)
+    if tolerance is not None:  # the spread of training seeds: a --retrain run when there is one
+        path = latest_run(spec.id, sc.name, ds, retrain=True) or path
     if path is None:
         raise ConfigError(f"no finished run of {spec.id} at scale {sc.name}; run "
                           f"`repro run {spec.id} --scale {sc.name}` first")
     base = load_baseline(Path(baseline_dir), spec.id)
+    rj = read_run_json(path)
+    kernels = (rj.get("env") or {}).get("kernels")
+    notes = host_lines(base, kernels)
+    why = refusal(base, kernels)
+    if why is not None and tolerance is None:
+        raise ConfigError(f"{spec.id}: run {path.name}: {why}")
+    if why is not None:
+        notes.append(f"compared under --tolerance although {why.split(':')[0]}")
     summary = json.loads((path / "summary.json").read_text())
-    return compare(base, summary)
+    retrain = bool((rj.get("config") or {}).get("retrain"))
+    if tolerance is not None:
+        notes.append(f"run {path.name}; tolerance {tolerance:g} x the "
+                     + ("training-seed spread (run made with --retrain)" if retrain else
+                        "sampling spread (no --retrain run: training seeds are not in the "
+                        "intervals, so this is narrower than the training-seed spread)"))
+    problems = compare(base, summary, tolerance=tolerance, retrain=retrain, notes=notes)
+    note = host_note(base, kernels, drift=bool(problems))
+    if note:
+        notes.append(note)
+    return problems, notes

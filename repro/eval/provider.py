@@ -49,6 +49,7 @@ def evaluator_key(kind: str, settings: EvaluatorSettings, data_fingerprint: str,
     from repro.engine.source_hash import source_hash
 
     from repro.eval.classifiers import architecture
+    from repro.kernels import key as kernel_key
 
     return content_key({
         "job": "train_evaluator",
@@ -57,6 +58,7 @@ def evaluator_key(kind: str, settings: EvaluatorSettings, data_fingerprint: str,
         "settings": settings.model_dump(mode="json", exclude={"real"}),
         "data": data_fingerprint,
         "seed": int(seed),
+        "kernels": kernel_key(),  # the paths it trains with (repro/kernels.py)
         "source": source_hash(TRAINING_MODULE),
     })
 

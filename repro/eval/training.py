@@ -29,6 +29,7 @@ from repro.eval.features import facing_joint_indices, random_yaw, to_model_input
 from repro.eval.sampling import random_windows, tiling_windows
 from repro.eval.settings import EvaluatorSettings
 from repro.seeding import derive_seed, numpy_rng
+from repro import kernels
 
 
 def _check_clipset(clipset: ClipSet) -> tuple[np.ndarray, np.ndarray]:
@@ -67,7 +68,7 @@ def train_evaluator(clipset: ClipSet, kind: str, settings: EvaluatorSettings, se
     with torch.random.fork_rng():
         torch.manual_seed(derive_seed(seed, "evaluator-init", kind))
         module = build_module(kind, input_dim, clipset.n_classes, settings)
-    optimizer = torch.optim.Adam(module.parameters(), lr=t.lr, weight_decay=t.weight_decay)
+    optimizer = kernels.adam(module.parameters(), lr=t.lr, weight_decay=t.weight_decay)
 
     def batches(epoch: int, gen):
         sub = int(torch.randint(0, 2**62, (1,), generator=gen))

@@ -93,6 +93,7 @@ from repro.motion.rotations import (axis_angle_to_matrix, matrix_to_6d, matrix_t
                                     sixd_to_matrix)
 from repro.seeding import derive_seed
 from repro.train.loop import to_device
+from repro import kernels
 
 
 class A2MConfig(GeneratorConfig):
@@ -361,7 +362,7 @@ class A2M(Generator):
         cfg = self.config
         self._build(derive_seed(seed, self.method_id, "init"))
         data = self._tensors(train_items)
-        opt = torch.optim.Adam(self.net.parameters(), lr=cfg.lr, betas=(0.9, 0.999),
+        opt = kernels.adam(self.net.parameters(), lr=cfg.lr, betas=(0.9, 0.999),
                                weight_decay=cfg.weight_decay)
         val_data = None if val_items is None else self._tensors(val_items)
         return self._fit_batches(train_items, data, opt, seed=seed, ckpt_dir=ckpt_dir,

@@ -98,6 +98,7 @@ from repro.models.base import Generator, GeneratorConfig, epoch_batches, registe
 from repro.models.baseline_io import item_noise
 from repro.seeding import derive_seed, numpy_rng
 from repro.train.loop import to_device
+from repro import kernels
 
 #: loss terms of the discriminators / of the generator (keys of :meth:`ActMoCoGAN.losses`)
 D_TERMS = ("d_image", "d_video", "d_category")
@@ -327,7 +328,7 @@ class ActMoCoGAN(Generator):
         """One Adam over generator and discriminators with MoCoGAN's shared settings."""
         cfg = self.config
         net = self.net if net is None else net
-        return torch.optim.Adam(net.parameters(), lr=cfg.lr, betas=(cfg.beta1, cfg.beta2),
+        return kernels.adam(net.parameters(), lr=cfg.lr, betas=(cfg.beta1, cfg.beta2),
                                 weight_decay=cfg.weight_decay)
 
     def _check_windows(self, items, what: str) -> None:

@@ -57,6 +57,7 @@ from repro.models.items import ActionItems, GeneratedItems
 from repro.models.layers import TransformerDecoder, TransformerEncoder, sinusoidal_encoding
 from repro.seeding import derive_seed
 from repro.train.loop import to_device
+from repro import kernels
 
 
 class ACTORConfig(GeneratorConfig):
@@ -196,7 +197,7 @@ class ACTOR(Generator):
         cfg = self.config
         self._build(derive_seed(seed, self.method_id, "init"))
         data = self._tensors(train_items)
-        opt = torch.optim.AdamW(self.net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+        opt = kernels.adamw(self.net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
         val_data = None if val_items is None else self._tensors(val_items)
         return self._fit_batches(train_items, data, opt, seed=seed, ckpt_dir=ckpt_dir,
                                  on_epoch=on_epoch, val_items=val_items, val_data=val_data)

@@ -110,6 +110,7 @@ from repro.errors import ConfigError, DataError
 from repro.models.base import Generator, GeneratorConfig, register
 from repro.models.baseline_io import item_noise
 from repro.seeding import derive_seed, numpy_rng
+from repro import kernels
 
 STAGES = ("vae", "dlow")
 
@@ -446,7 +447,7 @@ class DLowGen(Generator):
                     r = relabel(rec)
                     on_epoch(r["epoch"], r)
 
-            opt = torch.optim.Adam(module.parameters(), lr=lr)
+            opt = kernels.adam(module.parameters(), lr=lr)
             sched = torch.optim.lr_scheduler.LambdaLR(opt, linear_decay(epochs, fix))
             validate = None if val_data is None else self._window_validator(step, val_data)
             frozen = [vae] if stage == "dlow" else []

@@ -69,6 +69,7 @@ from repro.motion.motion import Motion
 from repro.motion.rotations import matrix_to_6d, sixd_to_matrix
 from repro.seeding import derive_seed
 from repro.train.loop import to_device
+from repro import kernels
 
 
 class MACVAEConfig(GeneratorConfig):
@@ -229,7 +230,7 @@ class MACVAE(Generator):
 
     def _optimizer(self):
         cfg = self.config
-        cls = torch.optim.AdamW if cfg.optimizer == "adamw" else torch.optim.Adam
+        cls = kernels.adamw if cfg.optimizer == "adamw" else kernels.adam
         return cls(self.net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
 
     def fit(self, train_items: PairItems, *, seed: int, ckpt_dir: str | Path | None = None,

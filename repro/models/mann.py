@@ -62,6 +62,7 @@ from repro.models.baseline_io import (check_items, pack_poses, pose_joints, to_g
 from repro.models.items import ActionItems, GeneratedItems, pad_last
 from repro.motion.rotations import matrix_to_6d, sixd_to_matrix
 from repro.seeding import derive_seed
+from repro import kernels
 
 #: The authors' SGDR caps the cosine phase at 0.9 of a period (``H_cur``) until the restart.
 SGDR_PHASE_CAP = 0.9
@@ -321,7 +322,7 @@ class MANN(Generator):
         drop_last = n >= cfg.batch_size
         n_batches = n // cfg.batch_size if drop_last else 1
         wd_norm = cfg.weight_decay / math.sqrt(n_batches * cfg.restart_period)
-        opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=wd_norm / cfg.lr)
+        opt = kernels.adamw(net.parameters(), lr=cfg.lr, weight_decay=wd_norm / cfg.lr)
 
         def batches(epoch, gen):
             for b, idx in enumerate(epoch_batches(n, cfg.batch_size, gen, drop_last=drop_last)):

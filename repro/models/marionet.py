@@ -59,6 +59,7 @@ from repro.motion.rotations import matrix_to_6d, sixd_to_matrix
 from repro.seeding import derive_seed, torch_generator
 from repro.train.loop import to_device
 from repro.train.schedules import linear_ramp
+from repro import kernels
 
 
 class MarioNetConfig(GeneratorConfig):
@@ -474,7 +475,7 @@ class MarioNet(Generator):
             mean, std = pose_statistics(data)
             self.net.pose_mean.copy_(mean)
             self.net.pose_std.copy_(std)
-        opt = torch.optim.Adam(self.net.parameters(), lr=cfg.lr)
+        opt = kernels.adam(self.net.parameters(), lr=cfg.lr)
         val_data = None if val_items is None else self._tensors(val_items, with_targets=True)
         return self._fit_batches(train_items, data, opt, seed=seed, ckpt_dir=ckpt_dir,
                                  on_epoch=on_epoch, val_items=val_items, val_data=val_data,

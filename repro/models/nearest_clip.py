@@ -156,10 +156,12 @@ class NearestClip(Generator):
                 raise DataError(f"nearest_clip: no training action of tag "
                                 f"{cond_items.label_names[c]!r} to retrieve")
             qi = torch.nonzero(cond_items.labels == c).reshape(-1)
-            d = torch.cdist(query[qi], bank[rows])                  # (q, m) metres
-            best = d.min(dim=1).values
-            for k, i in enumerate(qi.tolist()):
-                ties = torch.nonzero(d[k] == best[k]).reshape(-1)
+            cand = bank[rows]
+            for i in qi.tolist():
+                # squared distances by differences: same ranking and ties as the distance,
+                # without torch's square root, whose bits depend on the CPU (repro.kernels)
+                d = ((cand - query[i]) ** 2).sum(-1)
+                ties = torch.nonzero(d == d.min()).reshape(-1)
                 pick = ties[0] if ties.numel() == 1 else \
                     ties[int(numpy_rng(seed, self.method_id, "tie", i).integers(ties.numel()))]
                 out[i] = rows[pick]

@@ -90,6 +90,7 @@ from repro.models.base import Generator, GeneratorConfig, register
 from repro.models.odmo_nets import ODMONet, contrastive_loss, kl_term, squared_error
 from repro.seeding import derive_seed, numpy_rng
 from repro.train.loop import to_device
+from repro import kernels
 
 _U32 = 2 ** 32
 #: windows per pair: per-window means × PAIR = per-pair sums (Eq. 1, footnote 1)
@@ -335,7 +336,7 @@ class ODMO(Generator):
         c = self.config
         self._build(derive_seed(seed, self.method_id, "init"))
         yw = float(c.y_weight if c.y_weight is not None else train_items.y_weight)
-        opt = torch.optim.Adam(self.net.parameters(), lr=c.lr)
+        opt = kernels.adam(self.net.parameters(), lr=c.lr)
 
         def batches(epoch, gen):
             rng = numpy_rng(seed, self.method_id, "epoch", epoch)

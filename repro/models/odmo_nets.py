@@ -38,6 +38,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from repro import kernels
+
 
 def lmp(joints: torch.Tensor) -> torch.Tensor:
     """Local movement profile (§3.1): ``joints`` (N, T, J, 3) minus the root joint (joint 0) of
@@ -162,7 +164,7 @@ def contrastive_loss(mu1: torch.Tensor, mu2: torch.Tensor, same: torch.Tensor, *
                      margin: float = 5.0, form: str = "code") -> torch.Tensor:
     """Per-pair contrastive term (:mod:`repro.models.odmo` docstring), shape (B,)."""
     d2 = ((mu1 - mu2) ** 2).sum(-1)
-    d = torch.sqrt(d2.clamp_min(1e-12))
+    d = kernels.sqrt(d2.clamp_min(1e-12))  # host-independent bits (repro.kernels)
     far = F.relu(margin - d) ** 2
     if form == "code":
         near, far = 0.5 * F.relu(d2 - 0.25), 0.5 * far

@@ -110,6 +110,7 @@ from repro.motion.rotations import (
 )
 from repro.seeding import derive_seed
 from repro.train.loop import to_device
+from repro import kernels
 
 #: keyframe-embedding kinds
 KNOWN, MISSING, PADDING = 0, 1, 2
@@ -338,7 +339,7 @@ class SSMCT(Generator):
         cfg = self.config
         self._build(derive_seed(seed, self.method_id, "init"))
         data = self._tensors(train_items)
-        opt = torch.optim.AdamW(self.net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+        opt = kernels.adamw(self.net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
         val_data = None if val_items is None else self._tensors(val_items)
         return self._fit_batches(train_items, data, opt, seed=seed, ckpt_dir=ckpt_dir,
                                  on_epoch=on_epoch, val_items=val_items, val_data=val_data)

@@ -8,7 +8,9 @@ folder names sort by start time) holds
   ``config``, ``scale``, ``dataset``, ``git`` {commit, diff_sha256 of ``git diff HEAD
   --binary`` (null when clean), dirty} (null outside a checkout), ``packages`` (python, torch,
   numpy, scipy, scikit-learn, roma, pydantic, repro), ``env`` {device, dtype, threads, host,
-  platform, pid; on a CUDA device also ``gpu`` {name, cuda, cudnn}, :func:`gpu_info`},
+  platform, cpu, ``kernels`` (pinned or fast, the pin's settings, the host's vendor and widest
+  ISA: :func:`repro.kernels.record`), pid; on a CUDA device also ``gpu`` {name, cuda, cudnn},
+  :func:`gpu_info`},
   ``created``/``started``/``ended`` (UTC), ``keys`` {read, written}, ``jobs``
   (kind, label, key, status, seconds per job), ``error``/``note``, ``command``, ``extra``;
 - ``values.jsonl``: one JSON object per line ``{schema, row, column, replicate, value, ...}``
@@ -44,6 +46,7 @@ from pathlib import Path
 from typing import Any
 
 from repro.errors import ConfigError, DataError
+from repro.kernels import cpu_description, record as kernel_record
 from repro.store.atomic import atomic_write_bytes, atomic_write_json, jsonable, utc_now
 
 RUN_SCHEMA = 1
@@ -107,19 +110,8 @@ _ISA_FLAGS = ("avx512f", "avx512_bf16", "avx512_vnni", "amx_tile", "avx2", "fma"
 def cpu_info() -> dict[str, Any]:
     """The CPU a run used: model name, logical CPUs and the float-relevant ISA flags (from
     ``/proc/cpuinfo`` where there is one)."""
-    model, flags = platform.processor() or platform.machine(), set()
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
-            for line in f:
-                key, _, value = line.partition(":")
-                key = key.strip()
-                if key == "model name":
-                    model = value.strip()
-                elif key == "flags":
-                    flags = set(value.split())
-                    break
-    except OSError:
-        pass
+    _, model, flags = cpu_description()
+    model = model or platform.processor() or platform.machine()
     return {"model": model, "cpus": os.cpu_count(), "isa": [f for f in _ISA_FLAGS if f in flags]}
 
 
@@ -246,7 +238,8 @@ class RunRecorder:
             "git": git_state(), "packages": package_versions(),
             "env": {"device": device, "dtype": dtype, "threads": threads,
                     "host": socket.gethostname(), "platform": platform.platform(),
-                    "cpu": cpu_info(), "pid": pid, "pid_start": _proc_start(pid),
+                    "cpu": cpu_info(), "kernels": kernel_record(),
+                    "pid": pid, "pid_start": _proc_start(pid),
                     **({} if gpu is None else {"gpu": gpu})},
             "command": list(command) if command is not None else list(sys.argv),
             "created": now, "started": None, "ended": None,

@@ -138,6 +138,9 @@ def train(
     """
     import torch
 
+    from repro.kernels import check as check_kernels
+
+    check_kernels()  # every training computes under the pin it is keyed with (repro/kernels.py)
     dev = torch.device(current_device() if device is None else str(device))
     on_cpu = dev.type == "cpu"
     if not on_cpu:  # before resuming: the optimiser's state is then loaded onto the device

@@ -110,6 +110,9 @@ class MultiActParams(ProtocolParams):
     multimod_pairs: int = Field(20, ge=1, description="Multimod pairs per label (§1.4)")
     multimod_early_break: bool = Field(True, description="MultiAct's early break: absent "
                                        "labels count 0 but still divide (§1.4)")
+    classifier: Literal["multiact_gru", "a2m_gru"] = Field(
+        "multiact_gru", description="recogniser: MultiAct's 4×256 GRU (§2.3), or the same GRU "
+        "family at A2M's 2×128 (the quick profile's CI budget under the kernel pin)")
     evaluator_heading: Literal["remove", "yaw_augment"] = Field(
         "remove", description="heading-free recogniser (the stand-in's classes have fixed "
         "headings; MultiAct scores face-front canonicalised motions)")
@@ -360,7 +363,6 @@ class MultiActProtocol(Protocol):
     """Base of MultiAct's protocols (module docstring)."""
 
     Params = MultiActParams
-    evaluator_kind = "multiact_gru"
     #: the engine passes extra models and the row's resolved config to :meth:`generate`
     takes_models = True
     #: :meth:`measure` gets the data set (training pairs, fresh test references)
@@ -369,6 +371,10 @@ class MultiActProtocol(Protocol):
     real_row_options: tuple[str, ...] = ()
 
     params: MultiActParams
+
+    @property
+    def evaluator_kind(self) -> str:  # type: ignore[override]
+        return self.params.classifier
 
     @property
     def evaluator_heading(self) -> str:
