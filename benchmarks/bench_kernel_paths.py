@@ -9,6 +9,9 @@ qemu's own cache model), which is how the ops the environment cannot pin were fo
 every variant must give the native pinned bytes; unpinned, the variants show which ops the
 paths change (the control).
 
+Part 3 (``--steps ROUNDS``, a minute a round): the training-step cost of each layer family the
+harness trains (``benchmarks/kernel_step_cost.py``), pinned and unpinned, alternating.
+
 Part 2 (``--tables``, tens of minutes): the given table specs at ``quick``, each in an empty
 ``REPRO_HOME``, side by side: pinned with ambient settings that name other paths
 (``ATEN_CPU_CAPABILITY=default``, ``MKL_CBWR=AUTO``) and unpinned (``--fast-kernels``); the
@@ -160,11 +163,37 @@ def tables(names: list[str], jobs: int, reference: Path | None) -> dict:
     return out
 
 
+def steps(rounds: int) -> dict:
+    """Part 3 (``--steps``): the training-step cost of each layer family pinned and unpinned,
+    alternating the two modes ``rounds`` times in fresh processes so that both see the same
+    machine load; the median of each."""
+    import statistics
+
+    script = ROOT / "benchmarks" / "kernel_step_cost.py"
+    got: dict[str, list[dict]] = {"pinned": [], "unpinned": []}
+    for _ in range(rounds):
+        for mode, fast in (("pinned", None), ("unpinned", "1")):
+            r = subprocess.run([sys.executable, str(script)], env=_env(REPRO_FAST_KERNELS=fast),
+                               text=True, capture_output=True, timeout=1800, cwd=ROOT)
+            if r.returncode != 0:
+                raise SystemExit(f"step cost ({mode}) failed: {r.stderr[-800:]}")
+            got[mode].append(json.loads(r.stdout))
+    out: dict = {"rounds": rounds, "ms_per_step": {}, "ratio_pinned_over_unpinned": {}}
+    for fam in got["pinned"][0]:
+        p = statistics.median(g[fam] for g in got["pinned"])
+        u = statistics.median(g[fam] for g in got["unpinned"])
+        out["ms_per_step"][fam] = {"pinned": p, "unpinned": u}
+        out["ratio_pinned_over_unpinned"][fam] = round(p / u, 2)
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--ops", action="store_true", help="part 1: the op battery")
     ap.add_argument("--no-qemu", action="store_true", help="part 1 without the emulated Intel CPU")
     ap.add_argument("--tables", nargs="*", default=None, metavar="TABLE", help="part 2")
+    ap.add_argument("--steps", type=int, default=0, metavar="ROUNDS",
+                    help="part 3: training-step cost per layer family, pinned vs unpinned")
     ap.add_argument("--jobs", type=int, default=1, help="--jobs of each part-2 run (they run "
                     "side by side)")
     ap.add_argument("--reference", default=None, help="part 2: a REPRO_HOME holding a pinned "
@@ -177,8 +206,10 @@ def main() -> int:
     if args.tables:
         result["tables"] = tables(args.tables, args.jobs,
                                   Path(args.reference) if args.reference else None)
+    if args.steps:
+        result["steps"] = steps(args.steps)
     if not result:
-        ap.error("say --ops and/or --tables TABLE...")
+        ap.error("say --ops, --tables TABLE... and/or --steps ROUNDS")
     text = json.dumps(result, indent=1, sort_keys=True)
     print(text)
     if args.json:
