@@ -50,6 +50,12 @@ def train(ctx):
 
     ctx.seed_globals()
     t0 = time.time()
+    barrier = os.environ.get("REPRO_TEST_BARRIER")
+    if barrier:  # wait (at most 60 s) until a second process has started a training
+        with open(barrier, "a") as f:
+            f.write(f"{os.getpid()}\\n")
+        while time.time() < t0 + 60 and len(set(open(barrier).read().split())) < 2:
+            time.sleep(0.05)
     x = torch.from_numpy(np.load(ctx.input("prepare").file("x.npy")))
     y = torch.sin(x.sum(1, keepdim=True))
     model = torch.nn.Sequential(torch.nn.Linear(8, 64), torch.nn.Tanh(), torch.nn.Linear(64, 1))
@@ -177,7 +183,11 @@ def test_ray_run_equals_local_run_bitwise(ray_cluster, tmp_path, monkeypatch):
     local_pids = {line.split()[1] for line in calls.read_text().splitlines()}
     calls.unlink()
     hook = RecordingHook()
+    # the trainings wait for each other (at most a minute): a worker that finished its first
+    # training before Ray started a second worker must not make "side by side" a race
+    monkeypatch.setenv("REPRO_TEST_BARRIER", str(tmp_path / "barrier.txt"))
     remote, remote_run = _run(_graph(), ray_store, backend=RayBackend(), hook=hook)
+    monkeypatch.delenv("REPRO_TEST_BARRIER")
 
     assert set(_statuses(remote).values()) == {COMPUTED}
     assert [r.key for r in remote.results] == [r.key for r in local.results]
