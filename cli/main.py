@@ -3,6 +3,19 @@
 Each command group lives in ``cli/commands/<name>.py`` and exposes ``register(subparsers)``,
 which adds its sub-commands and sets ``func`` on them.  A :class:`repro.errors.ReproError`
 raised anywhere ends the command with one line on stderr and exit code 2.
+
+Terminal output (issue 29, item 10).  A name from the data (a source file called
+``\x1b]0;PWNED\x07\x1b[2J.txt``, a label, a value of a stored record) must not reach the
+terminal as the control sequence it spells.  So while a command runs, ``sys.stdout`` and
+``sys.stderr`` are :class:`TerminalStream` filters: every C0 control but newline and tab, DEL,
+every C1 control (U+0080-U+009F) and any lone surrogate is written as its escape (``\x1b``,
+``\r``, ``\u009b``, ``\ud800``), whoever printed it; error lines (:func:`_one_line`) escape
+newline and tab too.  The CLI's own styling is rich's: every piece of text rich renders is escaped the same way before
+rich styles it, and what rich writes is marked so that the filter passes it as it is
+(:func:`_escape_rich_segments`): the colours, progress bars and cursor moves rich makes itself
+stay intact on a terminal, the data inside them cannot add any.  Should rich ever render
+otherwise (another release), its output is escaped whole: styling lost on a terminal, nothing
+raw.
 """
 
 from __future__ import annotations
@@ -72,16 +85,131 @@ _LONG_WORD = re.compile(r"\S{%d,}" % (MAX_QUOTE_CHARS + 1))
 _LONG_QUOTE = re.compile(r"'[^'\n]{%d,}'|\"[^\"\n]{%d,}\"" % ((MAX_QUOTE_CHARS - 1,) * 2))
 
 
+#: what the terminal never gets raw (module docstring): C0 but newline, tab and a CR that ends
+#: a line (CRLF, as ``csv`` writes rows: harmless on a terminal, and CSV output stays CSV), DEL,
+#: C1 and lone surrogates; in an error line newline, tab and every CR too.  DEL and C1 are
+#: written ``\u007f``, ``\u009b`` (valid inside a JSON string, unlike ``\x7f``).
+_TERMINAL_UNSAFE = re.compile("\r(?!\n)|[\x00-\x08\x0b\x0c\x0e-\x1f\x7f-\x9f\ud800-\udfff]")
+_LINE_UNSAFE = re.compile("[\x00-\x1f\x7f-\x9f\ud800-\udfff]")
+_NAMED = {"\n": "\\n", "\r": "\\r", "\t": "\\t"}
+
+
+def _escape_char(m: re.Match) -> str:
+    c = m.group(0)
+    return _NAMED.get(c) or (f"\\x{ord(c):02x}" if ord(c) < 0x7f else f"\\u{ord(c):04x}")
+
+
+def escape_terminal(text: str, *, one_line: bool = False) -> str:
+    """``text`` with every character the terminal could take as a control written as its
+    escape (module docstring, "Terminal output"); ``one_line``: newline and tab too."""
+    return (_LINE_UNSAFE if one_line else _TERMINAL_UNSAFE).sub(_escape_char, text)
+
+
+class TerminalStream:
+    """``sys.stdout`` / ``sys.stderr`` while a command runs: text written is escaped with
+    :func:`escape_terminal`; everything else (``isatty``, ``fileno``, ``flush``, ``buffer``,
+    ``encoding``) is the real stream's."""
+
+    def __init__(self, raw):
+        self.raw = raw
+
+    def write(self, text: str) -> int:
+        if type(text) is _RichOutput:  # rich's own rendering, its text escaped already
+            self.raw.write(text)
+        else:
+            self.raw.write(escape_terminal(text) if isinstance(text, str) else text)
+        return len(text)
+
+    def writelines(self, lines) -> None:
+        for line in lines:
+            self.write(line)
+
+    def __getattr__(self, name: str):
+        return getattr(self.raw, name)
+
+
+class _RichOutput(str):
+    """What rich rendered once every piece of text in it was escaped
+    (:func:`_escape_rich_segments`): rich's styling in it passes the filter as it is."""
+
+    __slots__ = ()
+
+
+#: whether rich's rendering escapes the text it is given (:func:`_escape_rich_segments`)
+_RICH_ESCAPES = False
+
+
+def _escape_rich_segments() -> bool:
+    """Make rich escape the text of every segment it renders before it styles it (module
+    docstring), once per process, and mark the result (:class:`_RichOutput`) so that the
+    filter lets it through; rich's own control segments (cursor moves) are left as they are.
+    False when rich is missing or renders otherwise than this knows (its output is then
+    escaped whole by the filter)."""
+    global _RICH_ESCAPES
+    if _RICH_ESCAPES:
+        return True
+    try:
+        from rich.console import Console
+        from rich.segment import Segment
+    except ImportError:
+        return False
+    original = getattr(Console, "_render_buffer", None)
+    if original is None:
+        return False
+
+    def _render_buffer(self, buffer):
+        return _RichOutput(original(self, (
+            seg if seg.control else Segment(escape_terminal(seg.text), seg.style, seg.control)
+            for seg in buffer)))
+
+    _render_buffer.__doc__ = original.__doc__
+    Console._render_buffer = _render_buffer
+    _RICH_ESCAPES = True
+    return True
+
+
+def _escaping_excepthook(kind, value, tb) -> None:
+    """``sys.excepthook`` of a repro process: a traceback (a bug: every expected failure is one
+    line) printed with its controls escaped too, as the exception's message may quote data."""
+    import traceback
+
+    text = "".join(traceback.format_exception(kind, value, tb))
+    sys.stderr.write(escape_terminal(text))
+
+
+class terminal_guard:
+    """Context manager: :class:`TerminalStream` in front of ``sys.stdout`` and ``sys.stderr``
+    (not twice), the real streams back afterwards; an uncaught exception's traceback, printed
+    after that, is escaped by :func:`_escaping_excepthook` (installed unless another hook is)."""
+
+    def __enter__(self):
+        _escape_rich_segments()
+        self.hook = sys.excepthook
+        if sys.excepthook is sys.__excepthook__:
+            sys.excepthook = _escaping_excepthook
+        self.saved = (sys.stdout, sys.stderr)
+        if sys.stdout is not None and not isinstance(sys.stdout, TerminalStream):
+            sys.stdout = TerminalStream(sys.stdout)
+        if sys.stderr is not None and not isinstance(sys.stderr, TerminalStream):
+            sys.stderr = TerminalStream(sys.stderr)
+        return self
+
+    def __exit__(self, kind, value, tb) -> None:
+        sys.stdout, sys.stderr = self.saved
+        if kind is None or kind is SystemExit:  # nothing uncaught to print: the hook goes back
+            sys.excepthook = self.hook
+
+
 def _shorten(text: str, limit: int) -> str:
     half = limit // 2 - 20
     return f"{text[:half]}…[{len(text) - 2 * half} characters left out]…{text[-half:]}"
 
 
 def _one_line(msg: str) -> str:
-    """The message as printed: on one line (CR/LF escaped), each quoted value or long run of
-    non-blank characters clipped to ~:data:`MAX_QUOTE_CHARS`, the whole to
-    ~:data:`MAX_ERROR_CHARS`."""
-    msg = msg.replace("\r", "\\r").replace("\n", "\\n")  # one line, whatever was quoted
+    """The message as printed: on one line with no control character (CR, LF, tab, ESC, NUL,
+    C1 ... escaped: :func:`escape_terminal`), each quoted value or long run of non-blank
+    characters clipped to ~:data:`MAX_QUOTE_CHARS`, the whole to ~:data:`MAX_ERROR_CHARS`."""
+    msg = escape_terminal(msg, one_line=True)  # one line, whatever was quoted
     clip = lambda m: _shorten(m.group(0), MAX_QUOTE_CHARS)  # noqa: E731
     msg = _LONG_WORD.sub(clip, _LONG_QUOTE.sub(clip, msg))
     return msg if len(msg) <= MAX_ERROR_CHARS else _shorten(msg, MAX_ERROR_CHARS)
@@ -102,6 +230,11 @@ def _dataset_specs(args) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    with terminal_guard():
+        return _main(argv)
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     func = getattr(args, "func", None)
@@ -129,6 +262,14 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("repro: interrupted", file=sys.stderr)
         return 130
+    except MemoryError:
+        # input within the documented caps (docs/data.md, "Caps") that still did not fit this
+        # machine's memory or an address-space limit: one line, not a traceback; nothing is
+        # published half-written (every store and cache write is atomic)
+        print(f"repro: error: out of memory during `repro {getattr(args, 'command', '')}` "
+              "(the input is larger than this machine or its memory limit allows; for data "
+              "sets see docs/data.md, Caps)", file=sys.stderr)
+        return 2
     except BrokenPipeError:  # `repro ... | head`: the reader left; say nothing more
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())

@@ -20,7 +20,8 @@ from cli.main import main
 from repro.data import bandai, cache
 from repro.data.bandai import (BANDAI2_CARD, CM_TO_M, DatasetCard, load_bandai2,
                                prepare_bandai2)
-from repro.data.bvh import Bvh, format_bvh, read_bvh
+from repro.data.bvh import Bvh, read_bvh
+from repro.data.bvh_write import format_bvh
 from repro.errors import ConfigError, DataError, MissingDataError
 
 TOY_CARD = DatasetCard(name="toy", clips=None, frames=None, fps=30.0,

@@ -8,8 +8,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import repro.data.bvh as bvh_mod
-from repro.data.bvh import (MAX_DEPTH, Bvh, bvh_from_motion, format_bvh, parse_bvh, read_bvh,
-                            write_bvh)
+from repro.data.bvh import MAX_DEPTH, Bvh, parse_bvh, read_bvh
+from repro.data.bvh_write import bvh_from_motion, format_bvh
+from repro.data.bvh_write import save_bvh as write_bvh
 from repro.errors import DataError
 
 # A hierarchy exercising: a root with rotations before positions, per-joint channel orders,

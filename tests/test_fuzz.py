@@ -4,8 +4,10 @@ Targets: the BVH parser (:func:`repro.data.bvh.parse_bvh`), the table spec and s
 (:func:`repro.specs.load.load_spec`, :func:`repro.specs.scales.load_scales` and
 :func:`~repro.specs.scales.resolve_scale`), and the restricted unpickler
 (:func:`repro.data.upstream.restricted_pickle.loads_restricted`) with the HumanAct12 reader on
-top of it (:func:`repro.data.upstream.humanact12.read_humanact12`).  Inputs come from
-``tests/fuzz_strategies.py``.
+top of it (:func:`repro.data.upstream.humanact12.read_humanact12`), and declared data sets: spec
+files, labels side files, and sources that are hostile tar archives, prepared end to end
+(:func:`repro.data.dataset_prepare.prepare_dataset`).  Inputs come from
+``tests/fuzz_strategies.py`` and ``tests/fuzz_dataset_strategies.py``.
 
 Properties:
 
@@ -43,6 +45,7 @@ import traceback
 from collections import Counter
 from pathlib import Path
 
+import fuzz_dataset_strategies as fzd
 import fuzz_strategies as fz
 import numpy as np
 import pytest
@@ -383,8 +386,8 @@ _LABEL_SEEDS = (b"clip,action,style,subject\nc0,walk,happy,s1\nc1,run,,s2\n",
     by_subject=st.booleans())
 def test_label_files_raise_only_data_errors(seed, edits, by_subject):
     """A declared data set's labels side file (CSV or JSON): damaged copies of a valid one,
-    read and matched to the clips c0, c1 (repro.data.dataset_prepare._labels_for)."""
-    from repro.data.dataset_prepare import _labels_for
+    read and matched to the clips c0, c1 (repro.data.dataset_labels.labels_for)."""
+    from repro.data.dataset_labels import labels_for
     from repro.data.dataset_spec import DatasetSpec
 
     data = bytearray(seed)
@@ -399,7 +402,86 @@ def test_label_files_raise_only_data_errors(seed, edits, by_subject):
         "schema": 1, "name": "fz", "source": {"path": "x"},
         "labels": {"from": fmt, "file": f"labels.{fmt}"},
         "split": {"by": "subject" if by_subject else "clip"}})
-    call("label file", _labels_for, spec, folder, ["c0", "c1"], shown=bytes(data))
+    call("label file", labels_for, spec, folder, ["c0", "c1"], shown=bytes(data))
+
+
+@FUZZ
+@given(text=fzd.label_texts(), by_subject=st.booleans())
+def test_hostile_label_files_raise_only_data_errors(text, by_subject, monkeypatch):
+    """Labels files built to attack (issue 29): repeated JSON keys and CSV columns, lone
+    surrogates, C0 / C1 controls, deep nesting, files past the cap (lowered to 4 KiB here).
+    Property: only ReproErrors, and every name read is free of control characters."""
+    from repro.data import dataset_spec
+    from repro.data.dataset_labels import labels_for
+    from repro.data.dataset_spec import DatasetSpec, bad_char
+
+    monkeypatch.setattr(dataset_spec, "MAX_LABELS_BYTES", 4096)
+    fmt = "json" if text.lstrip(b"\xef\xbb\xbf\xff\xfe").startswith((b"{", b"[", b"n", b"1", b'"')) \
+        or not text.strip() else "csv"
+    folder = _WORK / "labels-hostile"
+    folder.mkdir(exist_ok=True)
+    (folder / f"labels.{fmt}").write_bytes(text)
+    spec = DatasetSpec.model_validate({
+        "schema": 1, "name": "fz", "source": {"path": "x"},
+        "labels": {"from": fmt, "file": f"labels.{fmt}"},
+        "split": {"by": "subject" if by_subject else "clip"}})
+    got = call("label file (hostile)", labels_for, spec, folder, ["c0", "c1"], shown=text)
+    if got in (_REFUSED, _FOREIGN):
+        return
+    names = [*got[2], *got[3], *(x for x in got[4] if x is not None), *got[5]]
+    if any(bad_char(n) is not None for n in names):
+        fail("label file (hostile)", f"a name with a control character was read: {names!r}",
+             text)
+
+
+@FUZZ
+@given(case=fzd.archive_cases())
+def test_dataset_archives_raise_only_repro_errors(case):
+    """Declared data sets whose source is a hostile tar archive (issue 29: long, deep, '..',
+    absolute and control-character member names; links, FIFOs, devices, sparse and duplicate
+    members; archive-root clips), labelled by a pattern or a side file, prepared end to end
+    under a memory cap.  Property: only ReproErrors; a prepared set names its clips by their
+    file stems, without control characters."""
+    import roma  # noqa: F401  (imported before the memory cap: prepare loads them)
+    import torch  # noqa: F401
+
+    from repro.data.dataset_prepare import prepare_dataset
+    from repro.data.dataset_spec import bad_char
+
+    folder = _WORK / "archives"
+    shutil.rmtree(folder, ignore_errors=True)
+    folder.mkdir()
+    (folder / f"clips.{case['ext']}").write_bytes(case["archive"])
+    lab = (f"pattern = {json.dumps(case['pattern'])}" if case["labels"] == "filename" else
+           f'from = "{case["labels"]}"\nfile = "{case["side"][0]}"')
+    if case["side"]:
+        (folder / case["side"][0]).write_bytes(case["side"][1])
+    inc = f"include = {json.dumps(case['include'])}\n" if case["include"] else ""
+    (folder / "s.toml").write_text(
+        f'schema = 1\nname = "fz"\n[source]\npath = "clips.{case["ext"]}"\n{inc}'
+        f'[labels]\n{lab}\n[split]\ntest_fraction = 0.5\nby = "{case["by"]}"\n')
+    shown = {k: v for k, v in case.items() if k != "archive"} | {
+        "members": _members(case["archive"])}
+    with memory_cap():
+        res = call("dataset archive", prepare_dataset, folder / "s.toml", force=True,
+                   shown=shown)
+    if res in (_REFUSED, _FOREIGN):
+        return
+    names = json.loads((res.path / "meta.json").read_text())["clip_names"]
+    if any(bad_char(n) is not None or ":" in n or "/" in n for n in names):
+        fail("dataset archive", f"clip names {names!r}", shown)
+
+
+def _members(data: bytes) -> list:
+    """The (name, type) list of a generated archive, for the record of a finding."""
+    import io
+    import tarfile
+
+    try:
+        with tarfile.open(fileobj=io.BytesIO(data), errors="surrogateescape") as tf:
+            return [(m.name[:200], m.type) for m in tf.getmembers()]
+    except Exception as e:  # noqa: BLE001 (only a description)
+        return [f"unreadable: {type(e).__name__}"]
 
 
 _datasets = st.sampled_from((None, None, "bandai2", "bandai2-mini", "humanact12", "nope", ""))

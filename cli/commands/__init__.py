@@ -21,3 +21,14 @@ def int_at_least(minimum: int, rule: str | None = None):
         return v
 
     return parse
+
+
+def run_ref(text: str) -> str:
+    """An argparse ``type`` for ``--run``: a run id, a prefix of one or ``latest``; an empty
+    one is refused (it would silently mean the newest run, or every run's prefix)."""
+    import argparse
+
+    if not text.strip():
+        raise argparse.ArgumentTypeError("the run id is empty (give a run id, a unique prefix "
+                                         "of one, or 'latest'; `repro runs ls` lists them)")
+    return text

@@ -324,12 +324,22 @@ def _bundle(args: argparse.Namespace) -> int:
     from repro.data.bandai import load_bandai2
     from repro.data.bundle import MINI_MAX_BYTES, build_mini
     from repro.errors import DataError
+    from repro.store.atomic import output_dir
 
+    if args.out is not None:  # a file, a device, '' or /proc/x: one line, before any work
+        output_dir(args.out, create=False)
     res = _prepare_bandai("bandai2", _default_source(args.source), args.workers, False)
     clips = load_bandai2("bandai2")
     if clips.fingerprint != res.fingerprint:  # pragma: no cover (prepare sets the pointer)
         raise DataError("prepared cache changed while bundling; run the command again")
-    out = build_mini(clips, args.out)
+    # the folder made (and written into) by the same helper as the check: one line, no
+    # traceback, when it cannot be; a write failing later is one line too
+    out_dir = output_dir(args.out) if args.out is not None else None
+    try:
+        out = build_mini(clips, out_dir)
+    except OSError as e:
+        raise DataError(f"cannot write the bundle ({e.strerror or e})",
+                        getattr(e, "filename", None) or out_dir) from None
     try:
         du = subprocess.run(["du", "-sb", *[f"{out['out']}/{f}" for f in out["files"]]],
                             capture_output=True, text=True, check=True).stdout.strip()

@@ -4,13 +4,23 @@ from __future__ import annotations
 
 import sys
 
-from cli.commands import int_at_least
+from cli.commands import int_at_least, run_ref
 
 
 def _which_run(p) -> None:
     p.add_argument("--scale", default="quick", help="quick | medium | paper (default: quick)")
     p.add_argument("--dataset", default=None, help="override the scale profile's data set")
-    p.add_argument("--run", default=None, help="a run id (default: the newest finished run)")
+    p.add_argument("--run", default=None, type=run_ref,
+                   help="a run id (default: the newest finished run)")
+
+
+def _check_out(out) -> None:
+    """Refuse a bad ``--out`` ('' = the current folder, a file, a device, /proc/x) before any
+    work; the writers check again (and create the folder) when they write."""
+    from repro.store.atomic import output_dir
+
+    if out is not None:
+        output_dir(out, create=False)
 
 
 def _replicate(text: str):
@@ -68,6 +78,7 @@ def register(sub) -> None:
 def cmd_report(args) -> int:
     from repro.report.html_report import write_report
 
+    _check_out(args.out)
     index = write_report(args.tables, args.out, scale=args.scale, dataset=args.dataset,
                          run=args.run, items=args.items, strips=not args.no_strips)
     print(f"repro: report written: {index}")
@@ -95,6 +106,7 @@ def cmd_strips(args) -> int:
     bad = [f for f in formats if f not in ("png", "exr")]
     if bad or not formats:
         raise ConfigError(f"--format {args.format!r}: choose png, exr or png,exr")
+    _check_out(args.out)
     rs = run_samples(args.table, scale=args.scale, dataset=args.dataset, run=args.run)
     t0 = time.perf_counter()
     rec = write_strips(rs, args.out, formats=formats, items=args.items,
@@ -118,6 +130,8 @@ def cmd_export(args) -> int:
 
     if args.out is None and not args.list:
         raise ConfigError("repro export: --out FOLDER is required (or --list)")
+    if not args.list:
+        _check_out(args.out)
     rs = run_samples(args.table, scale=args.scale, dataset=args.dataset, run=args.run)
     if args.list:
         print(describe(rs))

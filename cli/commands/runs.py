@@ -49,8 +49,9 @@ def register(subparsers) -> None:
                     help="run ids, unique prefixes of them, or 'latest'")
     ex.add_argument("--all", action="store_true", help="every run that has ended")
     ex.add_argument("--mlflow", required=True, metavar="URI",
-                    help="tracking store: a folder or file:/path (file store), "
-                         "http(s)://host:port, sqlite:///mlflow.db (needs the full mlflow)")
+                    help="tracking store: a folder or file:/path (file store: new, empty "
+                         "or a store already), http(s)://host:port (must answer within 5 s), "
+                         "sqlite:///mlflow.db (needs the full mlflow)")
     ex.add_argument("--experiment", default=None,
                     help="MLflow experiment of new exports (default: the run's table id)")
     ex.add_argument("--no-pictures", action="store_true",
@@ -182,7 +183,9 @@ def _show(args: argparse.Namespace) -> int:
     counts: dict[str, int] = {}
     for j in jobs:
         counts[j.get("status")] = counts.get(j.get("status"), 0) + 1
-    info.append(("jobs", ", ".join(f"{n} {s}" for s, n in sorted(counts.items())) or "—"))
+    info.append(("jobs", ", ".join(f"{n} {s}" for s, n in sorted(counts.items(),
+                                                              key=lambda kv: str(kv[0])))
+                 or "—"))
     keys = run.get("keys") or {}
     info.append(("store keys", f"{len(keys.get('read') or [])} read, "
                                f"{len(keys.get('written') or [])} written"))
@@ -318,12 +321,17 @@ def _export(args: argparse.Namespace) -> int:
         raise ConfigError("runs export: name the runs (RUN...) or give --all, not both")
     refs: list = list(args.runs)
     if args.all:
-        from repro.store.runs import TERMINAL, read_run_json, reconcile_stale, run_dirs
+        from repro.store.runs import TERMINAL, load_run, reconcile_stale, run_dirs
+
+        from repro.errors import DataError
 
         for d in run_dirs():
-            reconcile_stale(d)
-            if read_run_json(d)["status"] in TERMINAL:
-                refs.append(d)
+            try:  # the whole record (run.json, values, summary) read as the export will
+                reconcile_stale(d)
+                if load_run(d).status in TERMINAL:
+                    refs.append(d)
+            except DataError as e:  # one damaged record does not stop the others
+                print(f"repro: warning: skipping run {d.name}: {e}", file=sys.stderr)
         if not refs:
             raise ConfigError("runs export --all: no run has ended yet")
     out = export_runs(refs, args.mlflow, experiment=args.experiment,

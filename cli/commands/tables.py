@@ -7,7 +7,7 @@ import functools
 import json
 import sys
 
-from cli.commands import int_at_least
+from cli.commands import int_at_least, run_ref
 
 SCALES = ("quick", "medium", "paper")
 
@@ -124,7 +124,8 @@ def register(sub) -> None:
                    "or ray (a Ray cluster; pip install 'repro[ray]'); same keys, same numbers")
     p.add_argument("--address", default=None, metavar="ADDR",
                    help="with --executor ray: the cluster (HOST:PORT of the head node, "
-                   "ray://HOST:PORT, auto); default: RAY_ADDRESS, else a Ray started here")
+                   "ray://HOST:PORT with ray[client], auto), checked to answer within 5 s "
+                   "before any work; default: RAY_ADDRESS, else a Ray started here")
     p.add_argument("--seeds", default=None, help="replicate seeds, e.g. 0-9 or 0,3,7 (default: the "
                    "scale's); the first is also the training seed")
     _retrain_option(p)
@@ -158,7 +159,8 @@ def register(sub) -> None:
     p = sub.add_parser("show", help="print a table from its newest run (no computing)")
     p.add_argument("table")
     _common(p)
-    p.add_argument("--run", default=None, help="a run id (default: the newest finished run)")
+    p.add_argument("--run", default=None, type=run_ref,
+                   help="a run id (default: the newest finished run)")
     p.add_argument("--format", default="term", type=output_format,
                    help="term | md | latex | html | json | csv")
     p.set_defaults(func=cmd_show)

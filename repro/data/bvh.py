@@ -1,4 +1,5 @@
-"""BVH (Biovision Hierarchy) reading and writing: any hierarchy, any channel order per joint.
+"""BVH (Biovision Hierarchy) reading: any hierarchy, any channel order per joint (writing:
+:mod:`repro.data.bvh_write`).
 
 A BVH file is a HIERARCHY block (nested ``ROOT``/``JOINT``/``End Site`` blocks, each with an
 ``OFFSET`` and, for joints, a ``CHANNELS`` declaration) followed by a MOTION block (``Frames:``,
@@ -28,9 +29,8 @@ import math
 import re
 import threading
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -154,6 +154,12 @@ class Bvh:
         import torch
 
         F, J = self.n_frames, self.n_joints
+        from repro.data import prepare_caps  # its CHUNK_ABOVE / CHUNK (read at call time)
+
+        if F * J > prepare_caps.CHUNK_ABOVE and F > 1:  # in slices: roma's temporaries stay small
+            step = max(1, prepare_caps.CHUNK // J)
+            return torch.cat([replace(self, motion=self.motion[s:s + step])
+                              .local_rotations(as_quaternions) for s in range(0, F, step)])
         if as_quaternions:
             out = torch.zeros((F, J, 4), dtype=torch.float64)
             out[..., 3] = 1.0
@@ -382,10 +388,13 @@ def _text(b: bytes) -> str:
         return b.decode("latin-1")
 
 
-def parse_bvh(data: bytes | str, source: str | Path = "<bvh>") -> Bvh:
+def parse_bvh(data: bytes | str, source: str | Path = "<bvh>", *, check=None) -> Bvh:
     """Parse BVH text (bytes or str); ``source`` names the file in error messages.
 
     Only the small HIERARCHY block is decoded to text; the MOTION rows go to numpy as bytes.
+    ``check(n_frames, frame_time, n_joints)``, when given, is called once the MOTION header is
+    read and before the frames are parsed or anything their size is allocated: a caller's caps
+    (frames after resampling, memory) raise there (issue 29).
     """
     source = str(source)
     if isinstance(data, str):
@@ -459,6 +468,8 @@ def parse_bvh(data: bytes | str, source: str | Path = "<bvh>") -> Bvh:
     if not (math.isfinite(frame_time) and frame_time >= MIN_FRAME_TIME):
         raise DataError(f"Frame Time: {ttxt[:40]!r} must be a positive number of seconds (at "
                         f"least {MIN_FRAME_TIME:g}, bvh.MIN_FRAME_TIME)", source, time_line)
+    if check is not None:
+        check(n_frames, frame_time, len(names))
     body = memoryview(raw)[pos:]
     first_data_line = line
 
@@ -537,111 +548,3 @@ def read_bvh(path: str | Path) -> Bvh:
     except IsADirectoryError:
         raise DataError("is a directory, not a BVH file", p) from None
     return parse_bvh(data, p)
-
-
-# =========================================================================== writing
-def format_bvh(bvh: Bvh, decimals: int = 6) -> str:
-    """BVH text of ``bvh``; values printed with ``decimals`` digits after the point."""
-    f = f"{{:.{decimals}f}}"
-    out: list[str] = ["HIERARCHY"]
-    children: dict[int, list[int]] = {}
-    for j, p in enumerate(bvh.parents):
-        children.setdefault(p, []).append(j)
-    ends: dict[int, list[int]] = {}
-    for e, p in enumerate(bvh.end_parents):
-        ends.setdefault(p, []).append(e)
-
-    def vec(v) -> str:
-        return " ".join(f.format(float(x)) for x in v)
-
-    # Iterative depth-first emission: ("open", j, depth) / ("end", e, depth) / ("close", depth).
-    todo: list[tuple] = [("open", j, 0) for j in reversed(children.get(-1, []))]
-    while todo:
-        item = todo.pop()
-        kind = item[0]
-        if kind == "close":
-            out.append("\t" * item[1] + "}")
-            continue
-        if kind == "end":
-            _, e, d = item
-            ind = "\t" * d
-            out += [f"{ind}End Site", f"{ind}{{", f"{ind}\tOFFSET {vec(bvh.end_offsets[e])}",
-                    f"{ind}}}"]
-            continue
-        _, j, d = item
-        ind = "\t" * d
-        out.append(f"{ind}{'ROOT' if bvh.parents[j] < 0 else 'JOINT'} {bvh.names[j]}")
-        out.append(f"{ind}{{")
-        out.append(f"{ind}\tOFFSET {vec(bvh.offsets[j])}")
-        if bvh.channels[j]:
-            out.append(f"{ind}\tCHANNELS {len(bvh.channels[j])} {' '.join(bvh.channels[j])}")
-        todo.append(("close", d))
-        for e in reversed(ends.get(j, [])):
-            todo.append(("end", e, d + 1))
-        for c in reversed(children.get(j, [])):
-            todo.append(("open", c, d + 1))
-    out.append("MOTION")
-    out.append(f"Frames: {bvh.n_frames}")
-    out.append(f"Frame Time: {bvh.frame_time:.7g}")
-    buf = io.StringIO()
-    if bvh.n_channels:
-        np.savetxt(buf, bvh.motion, fmt=f"%.{decimals}f", delimiter=" ")
-    else:
-        buf.write("\n" * bvh.n_frames)
-    return "\n".join(out) + "\n" + buf.getvalue()
-
-
-def write_bvh(bvh: Bvh, path: str | Path, decimals: int = 6) -> Path:
-    """Write ``bvh`` to ``path`` atomically (temp file beside it, then rename)."""
-    import os
-    import tempfile
-
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", dir=p.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as fh:
-            fh.write(format_bvh(bvh, decimals))
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return p
-
-
-def bvh_from_motion(skeleton, rotations, root_translation, fps: float, *, order: str = "ZXY",
-                    scale: float = 100.0, end_sites: Sequence[tuple[int, Sequence[float]]] | None = None
-                    ) -> Bvh:
-    """Build a :class:`Bvh` from a skeleton and local rotations (e.g. generated motion).
-
-    ``rotations``: (F, J, 3, 3) matrices or (F, J, 4) xyzw quaternions; ``root_translation``:
-    (F, 3); lengths are multiplied by ``scale`` (metres -> centimetres by default).  The root gets
-    ``Xposition Yposition Zposition`` + rotation channels in ``order`` (intrinsic, e.g. ``"ZXY"``);
-    other joints get rotation channels only.  Leaf joints get a zero End Site unless
-    ``end_sites`` (joint index, offset in skeleton units) are given.
-    """
-    import roma
-    import torch
-
-    R = torch.as_tensor(np.asarray(rotations), dtype=torch.float64)
-    if R.shape[-1] == 4:
-        R = roma.unitquat_to_rotmat(R / R.norm(dim=-1, keepdim=True))
-    F, J = R.shape[0], R.shape[1]
-    if J != skeleton.n_joints:
-        raise ValueError(f"rotations have {J} joints, skeleton {skeleton.n_joints}")
-    order = order.upper()
-    if sorted(order) != ["X", "Y", "Z"]:
-        raise ValueError(f"order must be a permutation of XYZ, got {order!r}")
-    ang = roma.rotmat_to_euler(order, R, degrees=True).numpy()  # (F, J, 3)
-    t = np.asarray(root_translation, np.float64).reshape(F, 3) * scale
-    rot_ch = tuple(f"{a}rotation" for a in order)
-    channels = [("Xposition", "Yposition", "Zposition") + rot_ch] + [rot_ch] * (J - 1)
-    motion = np.concatenate([t, ang.reshape(F, J * 3)], axis=1)
-    if end_sites is None:
-        leaves = [j for j in range(J) if j not in set(skeleton.parents)]
-        end_sites = [(j, (0.0, 0.0, 0.0)) for j in leaves]
-    ends_p = tuple(int(j) for j, _ in end_sites)
-    ends_o = np.array([np.asarray(o, np.float64) * scale for _, o in end_sites]).reshape(-1, 3)
-    return Bvh(skeleton.names, skeleton.parents, np.asarray(skeleton.offsets) * scale,
-               tuple(channels), ends_p, ends_o, 1.0 / float(fps), motion)

@@ -39,11 +39,13 @@ Bad input (shapes, non-finite values, matrices that are not rotations, a bad ``o
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
-from repro.data.bvh import Bvh, format_bvh
+from repro.data.bvh import Bvh
 
 #: Length of an End Site as a fraction of its leaf joint's own OFFSET (same direction).
 END_SITE_FRACTION = 0.5
@@ -120,15 +122,13 @@ def bvh_text(skeleton, root, rotmats, fps, *, precision: int = 6, **kw) -> str:
 def bvh_of(skeleton, root, rotmats, fps, *, order: str = "ZXY", units: str = "cm",
            dummy_root: str | None = None, precision: int = 6) -> Bvh:
     """The :class:`~repro.data.bvh.Bvh` of a motion, numbers rounded to ``precision``
-    (module docstring for the conventions): :func:`repro.data.bvh.bvh_from_motion` builds it,
+    (module docstring for the conventions): :func:`bvh_from_motion` builds it,
     then the root offset, the dummy root and the rounding are applied.
 
     ``skeleton``: :class:`repro.motion.skeleton.Skeleton` (offsets in metres); ``root``: (T, 3)
     root translation in metres; ``rotmats``: (T, J, 3, 3) local rotation matrices (numpy or
     torch); ``fps``: frames per second.
     """
-    from repro.data.bvh import bvh_from_motion
-
     R, t, fps = _validate(skeleton, root, rotmats, fps, order, units)
     if not (isinstance(precision, int) and 0 <= precision <= 17):
         raise ValueError(f"precision must be an integer from 0 to 17, got {precision!r}")
@@ -164,8 +164,117 @@ def bvh_of(skeleton, root, rotmats, fps, *, order: str = "ZXY", units: str = "cm
 
 def write_bvh(path, skeleton, root, rotmats, fps, *, precision: int = 6, **kw) -> Path:
     """Write :func:`bvh_of` (same arguments) to ``path`` atomically (temporary file beside
-    it, then rename: :func:`repro.data.bvh.write_bvh`).  Returns the path."""
-    from repro.data.bvh import write_bvh as write_parsed
-
-    return write_parsed(bvh_of(skeleton, root, rotmats, fps, precision=precision, **kw), path,
+    it, then rename: :func:`save_bvh`).  Returns the path."""
+    return save_bvh(bvh_of(skeleton, root, rotmats, fps, precision=precision, **kw), path,
                         precision)
+
+
+# =========================================================================== any Bvh
+# format_bvh, save_bvh and bvh_from_motion lived in repro.data.bvh until issue 29 (the reader
+# alone is ~550 lines); bvh_write imports bvh, never the other way round
+def format_bvh(bvh: Bvh, decimals: int = 6) -> str:
+    """BVH text of ``bvh``; values printed with ``decimals`` digits after the point."""
+    f = f"{{:.{decimals}f}}"
+    out: list[str] = ["HIERARCHY"]
+    children: dict[int, list[int]] = {}
+    for j, p in enumerate(bvh.parents):
+        children.setdefault(p, []).append(j)
+    ends: dict[int, list[int]] = {}
+    for e, p in enumerate(bvh.end_parents):
+        ends.setdefault(p, []).append(e)
+
+    def vec(v) -> str:
+        return " ".join(f.format(float(x)) for x in v)
+
+    # Iterative depth-first emission: ("open", j, depth) / ("end", e, depth) / ("close", depth).
+    todo: list[tuple] = [("open", j, 0) for j in reversed(children.get(-1, []))]
+    while todo:
+        item = todo.pop()
+        kind = item[0]
+        if kind == "close":
+            out.append("\t" * item[1] + "}")
+            continue
+        if kind == "end":
+            _, e, d = item
+            ind = "\t" * d
+            out += [f"{ind}End Site", f"{ind}{{", f"{ind}\tOFFSET {vec(bvh.end_offsets[e])}",
+                    f"{ind}}}"]
+            continue
+        _, j, d = item
+        ind = "\t" * d
+        out.append(f"{ind}{'ROOT' if bvh.parents[j] < 0 else 'JOINT'} {bvh.names[j]}")
+        out.append(f"{ind}{{")
+        out.append(f"{ind}\tOFFSET {vec(bvh.offsets[j])}")
+        if bvh.channels[j]:
+            out.append(f"{ind}\tCHANNELS {len(bvh.channels[j])} {' '.join(bvh.channels[j])}")
+        todo.append(("close", d))
+        for e in reversed(ends.get(j, [])):
+            todo.append(("end", e, d + 1))
+        for c in reversed(children.get(j, [])):
+            todo.append(("open", c, d + 1))
+    out.append("MOTION")
+    out.append(f"Frames: {bvh.n_frames}")
+    out.append(f"Frame Time: {bvh.frame_time:.7g}")
+    buf = io.StringIO()
+    if bvh.n_channels:
+        np.savetxt(buf, bvh.motion, fmt=f"%.{decimals}f", delimiter=" ")
+    else:
+        buf.write("\n" * bvh.n_frames)
+    return "\n".join(out) + "\n" + buf.getvalue()
+
+
+def save_bvh(bvh: Bvh, path: str | Path, decimals: int = 6) -> Path:
+    """Write the parsed or built ``bvh`` to ``path`` atomically (temp file beside it, then
+    rename): :func:`format_bvh`'s text."""
+    import os
+    import tempfile
+
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", dir=p.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as fh:
+            fh.write(format_bvh(bvh, decimals))
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, p)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return p
+
+
+def bvh_from_motion(skeleton, rotations, root_translation, fps: float, *, order: str = "ZXY",
+                    scale: float = 100.0, end_sites: Sequence[tuple[int, Sequence[float]]] | None = None
+                    ) -> Bvh:
+    """Build a :class:`Bvh` from a skeleton and local rotations (e.g. generated motion).
+
+    ``rotations``: (F, J, 3, 3) matrices or (F, J, 4) xyzw quaternions; ``root_translation``:
+    (F, 3); lengths are multiplied by ``scale`` (metres -> centimetres by default).  The root gets
+    ``Xposition Yposition Zposition`` + rotation channels in ``order`` (intrinsic, e.g. ``"ZXY"``);
+    other joints get rotation channels only.  Leaf joints get a zero End Site unless
+    ``end_sites`` (joint index, offset in skeleton units) are given.
+    """
+    import roma
+    import torch
+
+    R = torch.as_tensor(np.asarray(rotations), dtype=torch.float64)
+    if R.shape[-1] == 4:
+        R = roma.unitquat_to_rotmat(R / R.norm(dim=-1, keepdim=True))
+    F, J = R.shape[0], R.shape[1]
+    if J != skeleton.n_joints:
+        raise ValueError(f"rotations have {J} joints, skeleton {skeleton.n_joints}")
+    order = order.upper()
+    if sorted(order) != ["X", "Y", "Z"]:
+        raise ValueError(f"order must be a permutation of XYZ, got {order!r}")
+    ang = roma.rotmat_to_euler(order, R, degrees=True).numpy()  # (F, J, 3)
+    t = np.asarray(root_translation, np.float64).reshape(F, 3) * scale
+    rot_ch = tuple(f"{a}rotation" for a in order)
+    channels = [("Xposition", "Yposition", "Zposition") + rot_ch] + [rot_ch] * (J - 1)
+    motion = np.concatenate([t, ang.reshape(F, J * 3)], axis=1)
+    if end_sites is None:
+        leaves = [j for j in range(J) if j not in set(skeleton.parents)]
+        end_sites = [(j, (0.0, 0.0, 0.0)) for j in leaves]
+    ends_p = tuple(int(j) for j, _ in end_sites)
+    ends_o = np.array([np.asarray(o, np.float64) * scale for _, o in end_sites]).reshape(-1, 3)
+    return Bvh(skeleton.names, skeleton.parents, np.asarray(skeleton.offsets) * scale,
+               tuple(channels), ends_p, ends_o, 1.0 / float(fps), motion)

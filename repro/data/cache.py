@@ -114,12 +114,44 @@ def valid_cache(path: Path) -> dict | None:
     return meta
 
 
+def first_non_finite(a: np.ndarray) -> tuple[int, int] | None:
+    """``(count, first frame)`` of the NaN and infinite values of a float array (frames along
+    its first axis), or None when it has none (also for an array that is not float).  The one
+    finiteness check: :func:`write_cache` and :func:`repro.data.prepare_caps.check_finite` use
+    it (a float64 value over 3.4e38 is infinite once stored as float32: check as stored)."""
+    a = np.asarray(a)
+    if a.dtype.kind != "f" or a.size == 0 or np.isfinite(a).all():
+        return None
+    bad = ~np.isfinite(a.reshape(len(a), -1) if a.ndim else a.reshape(1, 1))
+    return int(bad.sum()), int(np.argmax(bad.any(axis=1)))
+
+
+def _check_finite(arrays: dict[str, np.ndarray], meta: dict, where: Path) -> None:
+    """A DataError naming the first clip (``meta["clip_names"]``, by ``arrays["starts"]``) whose
+    frames hold a non-finite value in a float array (:func:`first_non_finite`): nothing
+    non-finite is published."""
+    for k in ARRAYS:
+        found = first_non_finite(arrays[k])
+        if found is None:
+            continue
+        row = found[1]
+        starts = np.asarray(arrays.get("starts", [0]))
+        clip = max(int(np.searchsorted(starts, row, side="right")) - 1, 0)
+        names = meta.get("clip_names") or []
+        name = names[clip] if clip < len(names) else f"#{clip}"
+        raise DataError(f"clip {str(name)[:80]!r}: non-finite values in {k} (frame "
+                        f"{row - int(starts[clip]) + 1 if clip < len(starts) else row + 1} of "
+                        "the clip); nothing was published", where)
+
+
 def write_cache(root: Path, fp: str, arrays: dict[str, np.ndarray], meta: dict, *,
                 replace: bool = True) -> Path:
     """Publish ``arrays`` (the :data:`ARRAYS`) and ``meta`` as ``root/fp/`` atomically: built in
     a temporary folder beside it, then renamed, so readers never see a half-written cache and a
     failure leaves any existing one untouched.  With ``replace=False`` a valid cache already
-    at ``root/fp`` (e.g. published meanwhile by another process) is kept and ours discarded."""
+    at ``root/fp`` (e.g. published meanwhile by another process) is kept and ours discarded.
+    Arrays holding a NaN or an infinity are refused before anything is written (issue 29)."""
+    _check_finite(arrays, meta, root / fp)
     root.mkdir(parents=True, exist_ok=True)
     final = root / fp
     tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{fp[:12]}-", dir=root))

@@ -14,59 +14,81 @@ names, sizes and contents), so editing either makes a new cache; nothing old is 
 
 from __future__ import annotations
 
-import csv
-import io
-import json
 import re
 from pathlib import Path
 
 import numpy as np
 
-from repro.data.dataset_spec import (FPS_RTOL, POSITION_TOL_M, PREPARE_VERSION, DatasetSpec,
-                                     LabelSpec, SkeletonSpec, clip_pattern, key_material,
-                                     load_dataset_spec, role_of, spec_key)
+from repro.data.dataset_labels import clip_stem, labels_for
+from repro.data.dataset_spec import (FPS_RTOL, MAX_LABELS_BYTES, POSITION_TOL_M,
+                                     PREPARE_VERSION, DatasetSpec, SkeletonSpec,
+                                     clip_pattern, key_material, load_dataset_spec,
+                                     naming_material, role_of, spec_key)
+from repro.data.prepare_caps import FrameBudget, check_finite, joints_f32
+from repro.data.prepare_caps import resample_clip as resample_long
 from repro.errors import DataError, MissingDataError
 
 
 # ------------------------------------------------------------------------ reading files
-def _iter_files(source: Path, spec: DatasetSpec, skipped: list[str] | None = None):
+def _iter_files(source: Path, spec: DatasetSpec, skipped: "SkippedFiles | None" = None):
     """(label, bytes) of the clip files (:func:`repro.data.dataset_spec.role_of`: the
     ``include`` pattern, case-insensitive, over the path inside the source; never the ASF) in a
     folder or tar archive, read as the built-in stand-in's are
     (:func:`repro.data.sources.iter_source`: one decompression pass, its size caps, no links
-    out of a folder).  ``skipped`` collects the paths of the entries not read (folders
-    included; :func:`_skipped_files` leaves those out)."""
+    out of a folder).  ``skipped`` is told the path of each file (not folder) not read."""
     from repro.data.sources import iter_source
 
     def kind(name: str) -> str | None:
-        role = role_of(spec, name)
-        if role is None and skipped is not None:
-            skipped.append(name)
-        return "clip" if role == "clip" else None
+        return "clip" if role_of(spec, name) == "clip" else None
 
-    for _, label, data in iter_source(source, kind_of=kind):
+    def skip(name: str) -> None:  # the ASF is read (by _read_asf), not skipped
+        if role_of(spec, name) is None:
+            skipped.add(name)
+
+    for _, label, data in iter_source(source, kind_of=kind,
+                                      on_skip=None if skipped is None else skip):
         yield label, data
 
 
-def _skipped_files(source: Path, skipped: list[str], read: list[str], known: set[str]) -> list[str]:
-    """The files of the source that no pattern took: ``skipped`` less folders (a folder
-    source's entries that are not files; an archive's names that lead to other entries) and
-    the ``known`` files (the labels file and the spec itself, as paths inside the source,
-    lower case)."""
-    if source.is_dir():
-        files = [n for n in skipped if (source / n).is_file()]
-    else:
-        inner = {r[len(f"{source}:"):] for r in read}  # iter_source's "archive:member"
-        parents = {q.rsplit("/", i)[0] for q in [*skipped, *inner] for i in range(1, q.count("/") + 1)}
-        files = [n for n in skipped if n not in parents]
-    return sorted(n for n in files if n.strip("/").lower() not in known)
+#: how many of the files no pattern took the card names (all are counted)
+SKIPPED_SHOWN = 10
+#: the characters :func:`repro.data.dataset_spec.bad_char` refuses, escaped on the card
+_UNSAFE = re.compile("[\x00-\x1f\x7f-\x9f\ud800-\udfff\u2028\u2029\u202a-\u202e"
+                     "\u2066-\u2069]")
+
+
+class SkippedFiles:
+    """The files of a source that no pattern took, in bounded memory (issue 29: every name of
+    40,000 4 KB-named members was kept, sorted and escaped a character at a time in Python:
+    66 s, 657 MB): a count and the :data:`SKIPPED_SHOWN` first names in sorted order.  The
+    ``known`` files (the labels file and the spec itself, as paths inside the source, lower
+    case) are not counted.  Folders never reach it (:func:`repro.data.sources.iter_source`
+    tells them apart by the entry's type)."""
+
+    def __init__(self, known: set[str] = frozenset()):
+        self.known, self.count, self._first = known, 0, []
+
+    def add(self, name: str) -> None:
+        import bisect
+
+        if name.strip("/").lower() in self.known:
+            return
+        self.count += 1
+        if len(self._first) < SKIPPED_SHOWN or name < self._first[-1]:
+            bisect.insort(self._first, name)
+            del self._first[SKIPPED_SHOWN:]
+
+    def shown(self) -> list[str]:
+        """The names the card lists, control characters and bytes that are not UTF-8 escaped
+        (``\\x1b``, ``\\udcff``): one compiled pattern over those few names only."""
+        return [_UNSAFE.sub(lambda m: ascii(m.group())[1:-1], n) for n in self._first]
 
 
 def _read_asf(source: Path, spec: DatasetSpec):
     """(bytes, where) of the spec's ASF skeleton file inside a source folder or archive, its
     path matched case-insensitively in both (an archive costs one more decompression pass,
     through the same caps; a folder's file must not be a link out of it)."""
-    from repro.data.sources import inside, iter_source
+    from repro.data.sources import MAX_MEMBER_BYTES, inside, iter_source, read_regular
 
     if source.is_dir():
         found = [q for q in sorted(source.rglob("*"))
@@ -77,7 +99,7 @@ def _read_asf(source: Path, spec: DatasetSpec):
         if not inside(found[0], source):
             raise DataError("a symbolic link that leads out of the source folder (copy the "
                             "file in instead)", found[0])
-        return found[0].read_bytes(), found[0]
+        return read_regular(found[0], MAX_MEMBER_BYTES, "the ASF skeleton file"), found[0]
     for _, label, data in iter_source(source, kind_of=lambda n: role_of(spec, n) == "asf"
                                       and "asf" or None):
         return data, label
@@ -85,13 +107,21 @@ def _read_asf(source: Path, spec: DatasetSpec):
                            "archive", source)
 
 
-def _convert_bvh(label: str, data: bytes, sk: SkeletonSpec) -> dict:
-    """One BVH clip in the harness conventions (metres, y up; dummy root dropped)."""
+def _convert_bvh(label: str, data: bytes, sk: SkeletonSpec, budget=None) -> dict:
+    """One BVH clip in the harness conventions (metres, y up; dummy root dropped); ``budget``
+    (:class:`repro.data.prepare_caps.FrameBudget`) checks its header before its frames are
+    parsed."""
     from repro.data.bvh import parse_bvh
 
-    b = parse_bvh(data, label)
-    quats = np.asarray(b.local_rotations(as_quaternions=True), np.float64)  # (T, J, 4) xyzw
+    check = None if budget is None else (
+        lambda n, frame_time, joints: budget.check(label, n, 1.0 / frame_time, joints))
+    b = parse_bvh(data, label, check=check)
     trans = np.asarray(b.local_translations(), np.float64)                 # (T, J, 3)
+    with np.errstate(over="ignore"):  # a root the prepared copy could not hold, refused before
+        # the rotations are converted (torch is not even loaded): 1e300 is inf in float32
+        root = trans[:, int(sk.dummy_root is not None and b.n_joints > 1)] * sk.scale
+        check_finite(label, root=root.astype(np.float32))
+    quats = np.asarray(b.local_rotations(as_quaternions=True), np.float64)  # (T, J, 4) xyzw
     names, parents, offsets = list(b.names), list(b.parents), np.asarray(b.offsets, np.float64)
     if sk.dummy_root is not None:
         if names[0] != sk.dummy_root:
@@ -99,8 +129,8 @@ def _convert_bvh(label: str, data: bytes, sk: SkeletonSpec) -> dict:
                             f"{sk.dummy_root!r}", label)
         if [p for p in parents[1:] if p == 0] != [0]:
             raise DataError(f"dummy root {sk.dummy_root!r} must have exactly one child", label)
-        if np.abs(offsets[0]).max() > 1e-6 or np.abs(trans[:, 0]).max() > 1e-6 or \
-                np.abs(quats[:, 0, :3]).max() > 1e-6:
+        if not (np.abs(offsets[0]).max() <= 1e-6 and np.abs(trans[:, 0]).max() <= 1e-6 and
+                np.abs(quats[:, 0, :3]).max() <= 1e-6):  # NaN fails (issue 29)
             raise DataError(f"dummy root {sk.dummy_root!r} is not all zero (dropping it would "
                             "move the body)", label)
         names, offsets, quats, trans = names[1:], offsets[1:], quats[:, 1:], trans[:, 1:]
@@ -112,20 +142,27 @@ def _convert_bvh(label: str, data: bytes, sk: SkeletonSpec) -> dict:
     for j, chans in enumerate(b.channels[first + 1:], start=1):
         if any(c.endswith("position") for c in chans):
             d = float(np.abs(trans[:, j] - offsets[j]).max())
-            if d > tol:
+            if not d <= tol:  # NaN fails
                 raise DataError(f"position channels of {names[j]!r} move it {d:.4g} units from "
                                 "its OFFSET; one skeleton per data set is required", label)
     offsets = offsets.copy()
     offsets[0] = 0.0  # the root's OFFSET is replaced by its position channels
     return {"names": names, "parents": parents, "offsets": offsets, "quats": quats,
-            "root": trans[:, 0], "fps": 1.0 / float(b.frame_time), "label": label}
+            "root": trans[:, 0].copy(),  # a copy: a view would keep all of (T, J, 3) alive
+            "fps": 1.0 / float(b.frame_time), "label": label}
 
 
-def _convert_amc(label: str, data: bytes, asf, sk: SkeletonSpec, fps: float | None) -> dict:
+def _convert_amc(label: str, data: bytes, asf, sk: SkeletonSpec, fps: float | None,
+                 budget=None) -> dict:
+    """One AMC clip against ``asf``; ``budget`` checks its frame count as it is read."""
     from repro.data import asf_amc
     from repro.motion.rotations import matrix_to_quat
 
-    amc = asf_amc.parse_amc(data, label, asf)
+    rate, joints = asf_amc.DEFAULT_FPS if fps is None else fps, len(asf.order)
+    amc = asf_amc.parse_amc(data, label, asf, frame_check=None if budget is None else (
+        lambda n: budget.check(label, n, rate, joints, count=False)))
+    if budget is not None:
+        budget.check(label, amc.n_frames, rate, joints)
     # the ASF's own ':units length' first (CMU's 0.45: lengths in inches), then the spec's units
     skel, root, rotmats, rate = asf_amc.to_skeleton_motion(
         asf, amc, **({} if fps is None else {"fps": fps}))
@@ -135,119 +172,27 @@ def _convert_amc(label: str, data: bytes, asf, sk: SkeletonSpec, fps: float | No
             "fps": float(rate), "label": label}
 
 
-def _name(v, what: str, clip: str, where, *, required: bool = False) -> str | None:
-    """A label value as a non-empty name without control characters (``None`` stays None: no
-    style or subject, unless ``required``)."""
-    if v is None and not required:
-        return None
-    if not isinstance(v, str) or not v.strip() or any(ord(ch) < 32 for ch in v):
-        raise DataError(f"clip {clip!r:.80}: {what} must be a non-empty name (no control "
-                        f"characters), got {v!r:.60}", where)
-    return v.strip()
-
-
-def _side_table(lab: LabelSpec, side: Path) -> dict[str, tuple]:
-    """clip -> (action, style, subject) of a CSV or JSON labels file (duplicates refused)."""
-    try:
-        text = side.read_text(encoding="utf-8-sig")  # a spreadsheet's BOM is no header
-    except OSError as e:
-        raise MissingDataError(f"cannot read the labels file ({e.strerror})", side) from None
-    except UnicodeDecodeError as e:
-        raise DataError(f"the labels file is not UTF-8 text (byte {e.start})", side) from None
-    table: dict[str, tuple] = {}
-
-    def put(clip, action, style, subject, where: str) -> None:
-        clip = _name(clip, f"the clip name ({where})", str(clip), side, required=True)
-        if clip in table:
-            raise DataError(f"clip {clip!r} is labelled twice ({where})", side)
-        table[clip] = (_name(action, "action", clip, side, required=True),
-                       _name(style, "style", clip, side), _name(subject, "subject", clip, side))
-
-    if lab.from_ == "csv":
-        reader = csv.DictReader(io.StringIO(text))
-        try:
-            reader.fieldnames = [f.strip() for f in reader.fieldnames or []]
-            if not {"clip", "action"} <= set(reader.fieldnames):
-                raise DataError("a labels CSV needs a header row with columns clip, action"
-                                f"[, style][, subject] (found {reader.fieldnames!r:.200})", side)
-            for n, r in enumerate(reader, start=2):
-                put(r.get("clip"), r.get("action"), r.get("style") or None,
-                    r.get("subject") or None, f"line {n}")
-        except csv.Error as e:  # e.g. a field over the csv module's size limit
-            raise DataError(f"not a readable CSV at line {reader.line_num} ({e})", side) from None
-        return table
-    try:
-        raw = json.loads(text)
-    except (ValueError, RecursionError) as e:
-        raise DataError(f"not JSON ({type(e).__name__}: {str(e)[:80]})", side) from None
-    if not isinstance(raw, dict):
-        raise DataError("labels JSON must map clip -> action or {action, style, subject}", side)
-    for k, v in raw.items():
-        if isinstance(v, dict):
-            put(k, v.get("action"), v.get("style"), v.get("subject"), f"key {k!r}")
-        else:
-            put(k, v, None, None, f"key {k!r}")
-    return table
-
-
-def _labels_for(spec: DatasetSpec, spec_dir: Path, stems: list[str]):
-    """(labels, styles, class names, style names, subjects, unused label rows) of the clips
-    ``stems`` (every name checked: a non-empty string, each clip labelled once, classes and
-    styles unique and used; ``subjects`` a name per clip or None; the unused rows: side-file
-    clips that name no clip of the source)."""
-    lab = spec.labels
-    got: dict[str, tuple[str, str | None, str | None]] = {}
-    where = spec_dir / (lab.file or spec.source.path)
-    unused_rows: list[str] = []
-    if lab.from_ == "filename":
-        rx = re.compile(lab.pattern)
-        for s in stems:
-            m = rx.search(s)
-            if m is None or m.group("action") is None:
-                raise DataError(f"file name {s!r} does not match the labels pattern "
-                                f"{lab.pattern!r}", where)
-            g = m.groupdict()
-            got[s] = (_name(m.group("action"), "action", s, where),
-                      _name(g.get("style"), "style", s, where),
-                      _name(g.get("subject"), "subject", s, where))
-    else:
-        table = _side_table(lab, where)
-        for s in stems:
-            if s not in table:
-                raise DataError(f"clip {s!r} has no label", where)
-            got[s] = table[s]
-        unused_rows = sorted(set(table) - set(stems))
-    subjects = [got[s][2] for s in stems]
-    if spec.split.by == "subject" and any(x is None for x in subjects):
-        missing = next(s for s in stems if got[s][2] is None)
-        raise DataError(f"clip {missing!r} has no subject; [split] by = 'subject' needs one "
-                        "for every clip", where)
-    for what, given in (("classes", lab.classes), ("styles", lab.styles)):
-        if given is not None and len(set(given)) != len(given):
-            raise DataError(f"[labels] {what} repeats a name: {given}", spec_dir)
-    classes = list(lab.classes) if lab.classes else sorted({a for a, _, _ in got.values()})
-    style_vals = {st for _, st, _ in got.values() if st is not None}
-    styles = list(lab.styles) if lab.styles else sorted(style_vals)
-    cidx, sidx = {c: i for i, c in enumerate(classes)}, {s: i for i, s in enumerate(styles)}
-    labels, style_ids = [], []
-    for s in stems:
-        a, st, _ = got[s]
-        if a not in cidx:
-            raise DataError(f"clip {s!r}: action {a!r} is not one of the classes {classes}",
-                            where)
-        if st is not None and st not in sidx:
-            raise DataError(f"clip {s!r}: style {st!r} is not one of {styles}", where)
-        labels.append(cidx[a])
-        style_ids.append(-1 if st is None else sidx[st])
-    unused = [c for c in classes if c not in {got[s][0] for s in stems}]
-    if unused:
-        raise DataError(f"class(es) {unused} have no clip (remove them from [labels] classes)",
-                        where)
-    return (np.array(labels, np.int64), np.array(style_ids, np.int64), classes,
-            styles if style_vals else [], subjects, unused_rows)
-
-
 # ------------------------------------------------------------------------ prepare
+def _finish_clip(c: dict, spec: DatasetSpec, fps: float) -> None:
+    """In place, as soon as clip ``c`` is converted: its root in metres, y up, resampled from
+    ``fps`` (the spec's ``fps``, else the first clip's rounded to 0.001: the rate the data set
+    is checked to have) to ``[frames] resample_to``, its rotations cast to float32 as stored.
+    Each step is the clip's own, so doing it as the clips stream gives the same bytes."""
+    sk = spec.skeleton
+    c["root"] = c["root"] * sk.scale
+    if sk.up_axis == "z":
+        _up_to_y(c)
+    if spec.frames.resample_to is not None and abs(spec.frames.resample_to - fps) > 1e-9:
+        n = len(c["quats"])
+        q, r = resample_long(c["quats"], c["root"], fps, spec.frames.resample_to)
+        c["quats"], c["root"] = np.asarray(q), np.asarray(r)
+        if len(q) < 2 <= n:
+            raise DataError(f"resampling its {n} frames from {fps:g} to "
+                            f"{spec.frames.resample_to:g} fps leaves {len(q)} frame (a clip "
+                            "needs at least 2): check [frames] resample_to", c["label"])
+    c["quats"] = c["quats"].astype(np.float32)  # as stored; halves what clips hold
+
+
 def _up_to_y(c: dict) -> None:
     """Turn a z-up clip y-up in place: a rotation of −90° about x applied to the root's
     rotation and translation (child offsets live in the root's frame, so they stay)."""
@@ -302,13 +247,13 @@ def _posture_checks(skel, body, joints: list, fps: float, spec_path: Path) -> li
     """Checks of the conventions on the motion itself: the body must stand up along +y on
     average (else ``up_axis`` / ``up_joint`` is wrong: refused); a data set whose roots move
     backwards relative to the hips' forward on average gets a card warning (swapped ``hips``?).
-    Returns the warnings."""
+    Returns the warnings.  Written so that NaN fails (a comparison with NaN is False)."""
     pelvis, U = body.pelvis, skel.index(body.joints[2])
     L, R = skel.index(body.joints[0]), skel.index(body.joints[1])
-    allj = np.concatenate(joints).astype(np.float64)
-    up = (allj[:, U] - allj[:, pelvis]).mean(0)
+    allj = np.concatenate([j[:, [U, pelvis]] for j in joints]).astype(np.float64)  # 2 joints
+    up = (allj[:, 0] - allj[:, 1]).mean(0)
     n = np.linalg.norm(up)
-    if n < 1e-9 or up[1] / n < UP_MIN_COS:
+    if not (n >= 1e-9 and up[1] / n >= UP_MIN_COS):
         raise DataError(f"the body's up direction ({body.joints[2]} above "
                         f"{skel.names[pelvis]}) points along {np.round(up / max(n, 1e-9), 2).tolist()} "
                         "on average, not +y: check [skeleton] up_axis (and up_joint)", spec_path)
@@ -333,7 +278,7 @@ def _test_warnings(classes, labels, split) -> list[str]:
 
 
 def _card(spec: DatasetSpec, classes, styles, labels, lengths, fps, subjects,
-          skipped: list[str], unused_rows: list[str], warnings: list[str]) -> dict:
+          skipped: SkippedFiles, unused_rows: list[str], warnings: list[str]) -> dict:
     """The generated card: counts, per-class clips / frames / durations, subjects, and what the
     source held that was not read (files no pattern took, label rows naming no clip)."""
     per_class = {}
@@ -346,7 +291,7 @@ def _card(spec: DatasetSpec, classes, styles, labels, lengths, fps, subjects,
     return {"name": spec.name, "clips": int(lengths.size), "frames": int(lengths.sum()),
             "fps": fps, "class_names": list(classes), "style_names": list(styles),
             "subjects": len(named), "per_class": per_class,
-            "skipped_files": {"count": len(skipped), "first": skipped[:10]},
+            "skipped_files": {"count": skipped.count, "first": skipped.shown()},
             "unused_label_rows": {"count": len(unused_rows), "first": unused_rows[:10]},
             "warnings": list(warnings), "license": spec.license, "credit": spec.credit, "description": spec.description}
 
@@ -363,9 +308,7 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
                                   write_json_atomic)
     from repro.data.splits import stratified_split, subject_split
     from repro.keys import content_key
-    from repro.motion.resample import resample_clip
-    from repro.motion.rotations import quat_to_matrix
-    from repro.motion.skeleton import Skeleton, forward_kinematics
+    from repro.motion.skeleton import Skeleton
 
     t0 = time.perf_counter()
     spec_path = Path(spec_path)
@@ -384,12 +327,13 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
         asf_bytes, asf_where = _read_asf(source, spec)
         digest.update(b"asf\0" + hashlib.sha256(asf_bytes).digest())
         asf = asf_amc.parse_asf(asf_bytes, asf_where)
-    from repro.data.sources import source_fingerprint
+    from repro.data.sources import read_regular, source_fingerprint
 
     if spec.labels.file:  # a side file of labels is part of what the data set is
         side = here / spec.labels.file
-        if side.is_file():
-            digest.update(b"labels\0" + hashlib.sha256(side.read_bytes()).digest())
+        if side.is_file():  # capped, regular files only (read again, checked, for labels)
+            digest.update(b"labels\0" + hashlib.sha256(
+                read_regular(side, MAX_LABELS_BYTES, "the labels file")).digest())
 
     # the source is named by its bytes (as the built-in stand-in's), the spec by its content
     src_fp = source_fingerprint(source, select=lambda n: role_of(spec, n))
@@ -397,7 +341,8 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
                "spec_file": str(spec_path.resolve()), "spec_key": spec_key(spec, spec_path)}
     fp = content_key({"kind": "dataset_spec", "version": PREPARE_VERSION,
                       "spec": key_material(spec),
-                      "source": src_fp, "asf": digest.hexdigest()})
+                      "source": src_fp, "asf": digest.hexdigest(),
+                      **naming_material(source)})  # archives only: how root members are named
     pointer["fingerprint"] = fp
     root = dataset_dir(spec.name)
     root.mkdir(parents=True, exist_ok=True)
@@ -410,30 +355,35 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
             return PrepareResult(root / fp, fp, True, time.perf_counter() - t0,
                                  len(meta["clip_names"]), int(meta["stats"]["frames"]))
         sk = spec.skeleton
-        clips, skipped = [], []
-        for label, data in _iter_files(source, spec, skipped):  # converted as they stream
-            clips.append(_convert_bvh(label, data, sk) if fmt == "bvh" else
-                         _convert_amc(label, data, asf, sk, spec.frames.fps))
-        if not clips:
-            raise DataError(f"no file matches {pattern!r} (case-insensitive)", source)
         known = {p.relative_to(source.resolve()).as_posix().lower()
                  for p in (here / (spec.labels.file or ""), spec_path.resolve())
                  if source.is_dir() and p.is_file() and p.is_relative_to(source.resolve())}
-        skipped = _skipped_files(source, skipped, [c["label"] for c in clips], known)
+        clips, skipped = [], SkippedFiles(known)  # a count and the first names: bounded
+        budget = FrameBudget(spec.frames.resample_to, spec.frames.fps, spec.limits)  # caps
+        for label, data in _iter_files(source, spec, skipped):  # converted as they stream
+            clips.append(_convert_bvh(label, data, sk, budget) if fmt == "bvh" else
+                         _convert_amc(label, data, asf, sk, spec.frames.fps, budget))
+            # scaled, turned, resampled and cast to float32 at once: what the clips hold until
+            # they are published is what the total caps count (the float64 copy at the files'
+            # rate was held for every clip: 4 × the frames counted, at twice the bytes)
+            _finish_clip(clips[-1], spec, spec.frames.fps if spec.frames.fps is not None
+                         else round(clips[0]["fps"], 3))
+        if not clips:
+            raise DataError(f"no file matches {pattern!r} (case-insensitive)", source)
         first = clips[0]
         for c in clips[1:]:
             if c["names"] != first["names"] or c["parents"] != first["parents"]:
                 raise DataError(f"hierarchy differs from {first['label']}'s; one skeleton per "
                                 "data set is required", c["label"])
-            if np.abs(c["offsets"] - first["offsets"]).max() * sk.scale > POSITION_TOL_M:
+            if not np.abs(c["offsets"] - first["offsets"]).max() * sk.scale <= POSITION_TOL_M:
                 raise DataError(f"OFFSETs differ from {first['label']}'s; one skeleton per data "
                                 "set is required", c["label"])
-            if abs(c["fps"] - first["fps"]) > FPS_RTOL * first["fps"]:
+            if not abs(c["fps"] - first["fps"]) <= FPS_RTOL * first["fps"]:
                 raise DataError(f"{c['fps']:g} fps, {first['label']} has {first['fps']:g}",
                                 c["label"])
         fps = round(first["fps"], 3)
         if spec.frames.fps is not None:
-            if abs(spec.frames.fps - first["fps"]) > FPS_RTOL * spec.frames.fps:
+            if not abs(spec.frames.fps - first["fps"]) <= FPS_RTOL * spec.frames.fps:
                 raise DataError(f"the files run at {first['fps']:g} fps, the spec says "
                                 f"{spec.frames.fps:g}", source)
             fps = float(spec.frames.fps)  # a printed frame time (0.008333) is a rounded 1/fps
@@ -444,17 +394,10 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
         skel = Skeleton(tuple(first["names"]), tuple(first["parents"]),
                         first["offsets"] * sk.scale,
                         None if sk.hips is None else tuple(sk.hips), sk.up_joint)
-        for c in clips:
-            c["root"] = c["root"] * sk.scale
-            if sk.up_axis == "z":
-                _up_to_y(c)
-            if spec.frames.resample_to is not None and abs(spec.frames.resample_to - fps) > 1e-9:
-                q, r = resample_clip(c["quats"], c["root"], fps, spec.frames.resample_to)
-                c["quats"], c["root"] = np.asarray(q), np.asarray(r)
         if spec.frames.resample_to is not None:
             fps = float(spec.frames.resample_to)
         order = sorted(range(len(clips)), key=lambda i: clips[i]["label"])
-        stems = [Path(clips[i]["label"]).stem for i in order]
+        stems = [clip_stem(clips[i]["label"], source) for i in order]
         seen: dict[str, str] = {}
         for i, st in zip(order, stems):
             if st in seen:
@@ -462,13 +405,15 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
                                 f"{clips[i]['label']} (clip names must be unique)", source)
             seen[st] = clips[i]["label"]
         body = _body(skel, spec_path)
-        labels, styles, classes, style_names, subjects, unused_rows = _labels_for(
+        labels, styles, classes, style_names, subjects, unused_rows = labels_for(
             spec, here, stems)
-        quats = [clips[i]["quats"].astype(np.float32) for i in order]
-        roots = [clips[i]["root"].astype(np.float32) for i in order]
-        joints = [forward_kinematics(skel, quat_to_matrix(q.astype(np.float64)),
-                                     r.astype(np.float64)).astype(np.float32)
-                  for q, r in zip(quats, roots)]
+        with np.errstate(over="ignore", invalid="ignore"):  # overflow: check_finite says it
+            # float64 copies dropped as they are cast (memory: docs/data.md, Frames and memory)
+            quats = [np.asarray(clips[i].pop("quats"), np.float32) for i in order]
+            roots = [clips[i].pop("root").astype(np.float32) for i in order]
+            joints = [joints_f32(skel, q, r) for q, r in zip(quats, roots)]
+        for i, q, r, j in zip(order, quats, roots, joints):  # nothing non-finite is published
+            check_finite(clips[i]["label"], rotations=q, root=r, joints=j)
         lengths = np.array([q.shape[0] for q in quats], np.int64)
         starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
         if spec.split.by == "subject":

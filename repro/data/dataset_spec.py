@@ -58,6 +58,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from repro.data.label_pattern import (MAX_PATTERN_CHARS, MAX_PATTERN_DEPTH,  # noqa: F401
+                                      MAX_PATTERN_REPEAT, pattern_problem)
 from repro.errors import SpecError
 
 SCHEMA = 1
@@ -71,10 +73,43 @@ POSITION_TOL_M = 1e-5
 #: relative difference of frame rates that are one rate: files print their frame time rounded
 #: (``0.008333`` is 120.005 fps)
 FPS_RTOL = 1e-3
+#: Largest data-set spec file (bytes) read, and largest labels side file (CSV or JSON): both are
+#: read through :func:`repro.data.sources.read_regular` (regular files only, at most cap + 1
+#: bytes; issue 29: ``/dev/zero`` or a 3 GB sparse CSV was read whole).  A real spec is a few
+#: KB; a labels file for 100,000 clips is a few MB.
+MAX_SPEC_BYTES = 1024 ** 2
+MAX_LABELS_BYTES = 16 * 1024 ** 2
+#: Label patterns (issue 29) are checked for their shape by
+#: :func:`repro.data.label_pattern.pattern_problem` (caps on length, nesting and counts; no
+#: nested repeat or alternation in a repeat of the shapes that backtrack without end) and
+#: matched under a time bound: :data:`MATCH_SECONDS` for all the file names together.
+MATCH_SECONDS = 5.0
 
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True)
+
+
+def bad_char(text: str) -> str | None:
+    """The first character of ``text`` that a name may not hold, or None: C0 controls (ESC,
+    BEL, NUL ...), DEL, C1 controls (U+0080-U+009F: U+009B is a terminal's CSI, U+0085 a line
+    break), lone surrogates (not text: printing one fails), line/paragraph separators and the
+    bidirectional overrides (issue 29: such names reached the terminal raw)."""
+    for ch in text:
+        o = ord(ch)
+        if (o < 32 or 0x7F <= o <= 0x9F or 0xD800 <= o <= 0xDFFF or o in (0x2028, 0x2029)
+                or 0x202A <= o <= 0x202E or 0x2066 <= o <= 0x2069):
+            return ch
+    return None
+
+
+def _no_controls(v, what: str):
+    """A field validator's check: ``v`` (a string or list of strings) holds no :func:`bad_char`."""
+    for x in [v] if isinstance(v, str) else (v or []):
+        ch = bad_char(x)
+        if ch is not None:
+            raise ValueError(f"{what} may not hold the control character U+{ord(ch):04X}")
+    return v
 
 
 class SourceSpec(_Strict):
@@ -86,11 +121,17 @@ class SourceSpec(_Strict):
     asf: str | None = Field(None, description="asf_amc: the ASF skeleton file, its path inside "
                             "the source folder or archive (case-insensitive)")
 
+    @field_validator("path", "include")
+    @classmethod
+    def _plain(cls, v):
+        return _no_controls(v, "a path")
+
     @field_validator("asf")
     @classmethod
     def _inside(cls, v):
         if v is None:
             return v
+        _no_controls(v, "a path")
         parts = v.replace("\\", "/").split("/")
         if v.startswith(("/", "\\")) or ".." in parts or ":" in parts[0]:
             raise ValueError("the ASF file is named by its path inside the source (no '..', "
@@ -106,15 +147,25 @@ class LabelSpec(_Strict):
     classes: list[str] | None = None
     styles: list[str] | None = None
 
+    @field_validator("file")
+    @classmethod
+    def _plain(cls, v):
+        return _no_controls(v, "a path")
+
+    @field_validator("classes", "styles")
+    @classmethod
+    def _names(cls, v):
+        return _no_controls(v, "a name")
+
     @field_validator("pattern")
     @classmethod
     def _regex(cls, v):
         if v is None:
             return v
-        try:
-            rx = re.compile(v)
-        except re.error as e:
-            raise ValueError(f"not a regular expression ({e})") from None
+        why = pattern_problem(v)
+        if why is not None:
+            raise ValueError(why)
+        rx = re.compile(v)
         if "action" not in rx.groupindex:
             raise ValueError("the pattern needs a named group 'action': (?P<action>...)")
         return v
@@ -144,9 +195,18 @@ class SkeletonSpec(_Strict):
         return self.length_scale if self.length_scale is not None else UNITS[self.units]
 
 
+#: bounds of ``[frames]`` (issue 29): a capture's rate is at most 10 kHz (high-speed systems
+#: record 2 kHz), and a clip is resampled to 1 to 1,000 fps (the papers use 20 to 120)
+MAX_FPS = 10_000.0
+RESAMPLE_RANGE = (1.0, 1000.0)
+
+
 class FramesSpec(_Strict):
-    fps: float | None = Field(None, gt=0)
-    resample_to: float | None = Field(None, gt=0)
+    fps: float | None = Field(None, gt=0, le=MAX_FPS, description="the files' frame rate "
+                              "(checked), at most 10,000")
+    resample_to: float | None = Field(None, ge=RESAMPLE_RANGE[0], le=RESAMPLE_RANGE[1],
+                                      description="resample every clip to this rate, 1 to "
+                                      "1,000 fps (a clip must keep at least 2 frames)")
 
 
 class SplitSpec(_Strict):
@@ -166,6 +226,26 @@ class ExpectSpec(_Strict):
     joints: int | None = Field(None, gt=0, description="after a dummy root is dropped")
 
 
+class LimitsSpec(_Strict):
+    """Overrides of the caps on what preparing this data set may hold
+    (:mod:`repro.data.prepare_caps`, docs/data.md "Frames and memory"); a key left out keeps
+    the built-in cap.  Caps change what is refused, never the bytes prepared, so the table is
+    not part of the fingerprint (:func:`key_material`).  The upper bounds keep a typo from
+    lifting every cap: a clip at most 10 million frames (``bvh.MAX_FRAMES``), 200 million
+    frame-joints (~34 GB), a data set at most 100 million frames, 2 billion frame-joints."""
+
+    max_clip_frames: int | None = Field(None, ge=1, le=10_000_000, strict=True,
+                                        description="frames of one clip after resampling")
+    max_clip_joint_frames: int | None = Field(None, ge=1, le=200_000_000, strict=True,
+                                              description="frames × joints of one clip (about "
+                                              "170 bytes of memory each)")
+    max_total_frames: int | None = Field(None, ge=1, le=100_000_000, strict=True,
+                                         description="frames of every clip after resampling")
+    max_total_joint_frames: int | None = Field(None, ge=1, le=2_000_000_000, strict=True,
+                                               description="frames × joints of every clip after "
+                                               "resampling (about 60 bytes of memory each)")
+
+
 class DatasetSpec(_Strict):
     schema_: Literal[1] = Field(alias="schema")
     name: str = Field(pattern=r"^[a-z0-9][a-z0-9._-]{0,63}$")
@@ -178,6 +258,7 @@ class DatasetSpec(_Strict):
     frames: FramesSpec = FramesSpec()
     split: SplitSpec = SplitSpec()
     expect: ExpectSpec | None = None
+    limits: LimitsSpec = LimitsSpec()
 
 
 #: fields added after the first data-set specs were prepared: left out of the key material
@@ -190,14 +271,30 @@ BUILTIN_SPECS = {"bandai2": "bandai2.toml"}
 
 def key_material(spec: DatasetSpec) -> dict:
     """The spec as it enters a prepared copy's fingerprint and :func:`spec_key`: validated,
-    less its words (description, license, credit: editing them retrains nothing) and less the
-    later fields at their defaults."""
+    less its words (description, license, credit: editing them retrains nothing), its
+    ``[expect]`` and ``[limits]`` and the later fields at their defaults."""
     d = spec.model_dump(mode="json", by_alias=True, exclude={"description", "license", "credit"})
     for (section, field), default in _LATER_DEFAULTS.items():
         if d[section].get(field) == default:
             d[section].pop(field, None)
     d.pop("expect", None)  # a check on the prepared data, not part of what it is
+    d.pop("limits", None)  # caps refuse data; they never change the bytes prepared
     return d
+
+
+#: How an archive's clips are named, in the key of archive sources only (issue 29): a member
+#: at an archive's root was named ``clips.tar.xz:stem`` and is now ``stem``, so a copy
+#: prepared under the old rule must not be reused.  Folder sources (and the built-in sets,
+#: keyed by :mod:`repro.data.bandai`) keep their fingerprints.
+ARCHIVE_NAMING = {"archive_root_names": "stem"}
+
+
+def naming_material(source: Path) -> dict:
+    """:data:`ARCHIVE_NAMING` when ``source`` is an archive (a regular file), else ``{}``."""
+    try:
+        return dict(ARCHIVE_NAMING) if source.is_file() else {}
+    except (OSError, ValueError):
+        return {}
 
 
 def clip_pattern(spec: DatasetSpec) -> str:
@@ -238,7 +335,8 @@ def load_dataset_spec(path: str | Path) -> DatasetSpec:
     from repro.specs.load import _problems_from_validation, read_toml
 
     path = Path(path)
-    data = read_toml(path)
+    # read once, a regular file of at most MAX_SPEC_BYTES (a FIFO or a device is refused)
+    data = read_toml(path, MAX_SPEC_BYTES, "the data-set spec")
     try:
         spec = DatasetSpec.model_validate(data)
     except ValidationError as e:
@@ -286,22 +384,24 @@ def spec_files() -> tuple[list[Path], list[Path]]:
     return named, found
 
 
-def declared_specs() -> tuple[dict[str, tuple[Path, DatasetSpec]], list[str]]:
-    """{name: (spec file, spec)} of every registered spec, and the problems of folder files skipped
-    (not data-set specs, or invalid).  Two files declaring one name is a ConfigError naming
+def declared_specs() -> tuple[dict[str, tuple[Path, DatasetSpec]], list[tuple[Path, str]]]:
+    """{name: (spec file, spec)} of every registered spec, and the (file, problem) of the folder
+    files skipped (not data-set specs, or invalid).  Two files declaring one name is a ConfigError naming
     both; so is a named file that is not a valid spec."""
     from repro.errors import ConfigError
 
     named, found = spec_files()
     out: dict[str, tuple[Path, DatasetSpec]] = {}
-    skipped: list[str] = []
+    skipped: list[tuple[Path, str]] = []
     for path, must in [(p, True) for p in named] + [(p, False) for p in found]:
         try:
             spec = load_dataset_spec(path)
         except SpecError as e:
             if must:
                 raise
-            skipped.append(str(e))
+            skipped.append((path, str(e)))
+            if not _regular_small(path):  # a FIFO, device or huge file: said once
+                _warn_once(str(e))
             continue
         other = out.get(spec.name)
         if other is not None and other[0].resolve() != path.resolve():
@@ -309,6 +409,68 @@ def declared_specs() -> tuple[dict[str, tuple[Path, DatasetSpec]], list[str]]:
                               f"{other[0]} and {path}")
         out[spec.name] = (path, spec)
     return out, skipped
+
+
+_WARNED: set[str] = set()
+
+
+def _regular_small(path: Path) -> bool:
+    """Whether ``path`` is a regular file within :data:`MAX_SPEC_BYTES` (``stat`` only)."""
+    import stat
+
+    try:
+        st = path.stat()
+    except (OSError, ValueError):
+        return False
+    return stat.S_ISREG(st.st_mode) and st.st_size <= MAX_SPEC_BYTES
+
+
+def _warn_once(message: str) -> None:
+    """One line on stderr per problem and process: a ``*.toml`` in a ``$REPRO_DATASETS`` folder
+    that is no readable file is skipped, and commands about other data sets go on (issue 29: a
+    FIFO or a link to /dev/zero there blocked ``repro data info bandai2-mini``)."""
+    import sys
+
+    if message not in _WARNED:
+        _WARNED.add(message)
+        shown = "".join(c if bad_char(c) is None else ascii(c)[1:-1] for c in message)
+        print(f"repro: warning: skipped: {shown}", file=sys.stderr)
+
+
+def skipped_reason(name: str) -> str:
+    """For the "unknown data set" error: why the spec file that declares ``name`` (its stem, or
+    a ``name = "..."`` line in it) was skipped from a ``$REPRO_DATASETS`` folder (a refused
+    pattern, a FIFO ...); else how many were skipped and the first problem; '' if none was."""
+    from repro.errors import ReproError
+
+    try:
+        skipped = declared_specs()[1]
+    except ReproError:
+        return ""
+    if not skipped:
+        return ""
+    line = re.compile(r"(?m)^\s*name\s*=\s*[\"']" + re.escape(name) + r"[\"']\s*(#.*)?$")
+
+    def declares(path: Path) -> bool:
+        from repro.data.sources import read_regular
+
+        if path.stem == name:
+            return True
+        try:
+            text = read_regular(path, MAX_SPEC_BYTES, "the data-set spec").decode("utf-8", "replace")
+        except ReproError:
+            return False
+        return line.search(text) is not None
+
+    def flat(message: str) -> str:
+        one = " ".join(message.split())
+        return one if len(one) <= 300 else one[:297] + "..."
+
+    mine = [m for p, m in skipped if declares(p)]
+    if mine:
+        return "; its spec file was skipped: " + "; ".join(flat(m) for m in mine[:2])
+    return (f"; {len(skipped)} spec file(s) in ${ENV} were skipped, the first: "
+            f"{flat(skipped[0][1])}")
 
 
 def spec_file_of(name: str) -> Path | None:
@@ -344,21 +506,39 @@ def spec_key(spec: DatasetSpec, spec_path: Path) -> str:
 
     from repro.keys import content_key
 
+    from repro.data.sources import read_regular
+    from repro.errors import DataError
+
     here = Path(spec_path).resolve().parent
     side = here / spec.labels.file if spec.labels.file else None
+    try:  # capped, and a FIFO is not waited on; a file that cannot be read keys as such
+        labels = hashlib.sha256(read_regular(side, MAX_LABELS_BYTES, "the labels file")
+                                ).hexdigest() if side and side.is_file() else None
+    except DataError as e:
+        labels = f"unreadable: {e.problem}"
     src = here / spec.source.path
     try:  # a folder: only the files the spec reads (another file beside them changes nothing)
         st = src.stat()
         src_state = [st.st_size, st.st_mtime_ns] if src.is_file() else sorted(
             [r, q.stat().st_size, q.stat().st_mtime_ns] for q in src.rglob("*")
             if q.is_file() and role_of(spec, r := q.relative_to(src).as_posix()))
-    except OSError:
+        if src.is_dir():  # a name that is not UTF-8 cannot be keyed as it is
+            src_state = [[r if r.isascii() or _utf8(r) else ascii(r), *rest]
+                         for r, *rest in src_state]
+    except (OSError, ValueError):
         src_state = None
     return content_key({
         "spec": key_material(spec),
-        "labels": hashlib.sha256(side.read_bytes()).hexdigest() if side and side.is_file()
-        else None,
-        "source": src_state})
+        "labels": labels,
+        "source": src_state, **naming_material(src)})
+
+
+def _utf8(text: str) -> bool:
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
 
 
 def check_current(name: str, spec_path: Path, pointer: dict) -> str | None:

@@ -341,7 +341,10 @@ def get_entry(name: str) -> DatasetEntry:
         return DATASETS[name]
     near = difflib.get_close_matches(name, dataset_names(), n=1)
     hint = f"; did you mean {near[0]!r}?" if near else ""
-    raise ConfigError(f"unknown data set {name!r}{hint} (known: {', '.join(dataset_names())})")
+    from repro.data.dataset_spec import skipped_reason  # issue 29: say why it was skipped
+
+    raise ConfigError(f"unknown data set {name!r}{hint} (known: {', '.join(dataset_names())})"
+                      f"{skipped_reason(name)}")
 
 
 def load_clipset(name: str):

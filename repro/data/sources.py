@@ -30,6 +30,15 @@ MAX_SOURCE_BYTES = 4 * 1024 ** 3
 #: Largest tar extension header (a GNU long name or link, a pax header), which :mod:`tarfile`
 #: reads whole into memory before the member it describes; real ones are a few hundred bytes.
 MAX_TAR_HEADER_BYTES = 1024 ** 2
+#: Longest path of an archive member (characters) and most folders on its way: a 1 MiB pax
+#: name of 200,000 ``a/`` (issue 29) is refused instead of costing memory in every step that
+#: looks at its parent folders.  A file system's own limit is 4096 bytes (PATH_MAX).
+MAX_MEMBER_NAME = 4096
+MAX_MEMBER_DEPTH = 64
+#: Most entries (files, folders, links) an archive may hold: each costs a header parse even
+#: when skipped, so 40,000 members of 4 KB names in a 1.4 MB .tar.gz took a minute (issue 29).
+#: The real Bandai-2 archive holds about 3,000.
+MAX_MEMBERS = 200_000
 
 
 def source_fingerprint(source: Path, select: Callable[[str], object] | None = None) -> str:
@@ -40,29 +49,115 @@ def source_fingerprint(source: Path, select: Callable[[str], object] | None = No
     be reused (DataError naming it)."""
     from repro.keys import content_key, sha256_file
 
+    check_source(source)
     if source.is_dir():
         entries = sorted(source.rglob("*"))
         out = next((p for p in entries if not inside(p, source)), None)
         if out is not None:
-            raise DataError("a symbolic link that leads out of the source folder (copy the "
-                            "file in instead)", out)
+            raise DataError(_OUT_OR_LOOP, out)
         files = [p for p in entries if p.is_file()
                  and (select is None or select(p.relative_to(source).as_posix()))]
+        for p in files:
+            check_utf8_name(p.relative_to(source).as_posix(), source)
         return content_key([[p.relative_to(source).as_posix(), sha256_file(p)] for p in files])
     return sha256_file(source)
 
 
 def inside(path: Path, folder: Path) -> bool:
-    """False for a symlink (file or folder on the way) that leads out of ``folder``: a folder
-    source reads only what lies inside it (such a link is refused by :func:`iter_source`)."""
+    """False for a symlink (file or folder on the way) that leads out of ``folder``, or that
+    loops (Python 3.11's ``resolve`` raises RuntimeError on a loop): a folder source reads only
+    what lies inside it (such a link is refused by :func:`iter_source`)."""
     try:
         return path.resolve().is_relative_to(folder.resolve())
-    except OSError:
+    except (OSError, RuntimeError):
         return False
 
 
+_OUT_OR_LOOP = ("a symbolic link that leads out of the source folder, or loops (copy the file "
+                "in instead)")
+
+
+def check_source(source: Path) -> None:
+    """A source must be a folder or a regular file (an archive): ``/dev/zero`` would be hashed
+    forever, and opening a FIFO blocks until a writer comes (issue 29).  ``stat`` only, so
+    nothing is opened; DataError naming the source otherwise."""
+    import stat
+
+    try:
+        mode = source.stat().st_mode
+    except (OSError, ValueError) as e:
+        why = getattr(e, "strerror", None) or "not a valid path"
+        raise DataError(f"cannot read the source ({why})", source) from None
+    if not (stat.S_ISDIR(mode) or stat.S_ISREG(mode)):
+        raise DataError(f"the source is a {_kind(mode)}, not a folder or an archive file",
+                        source)
+
+
+def check_utf8_name(name: str, source: Path) -> None:
+    """A folder file's name must be text: a byte that is not UTF-8 comes out of ``os`` as a
+    lone surrogate, which no key, JSON file or terminal can take (DataError naming it
+    escaped, and the folder)."""
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:
+        raise DataError(f"the file name {ascii(name)} is not UTF-8 text; rename the file",
+                        source) from None
+
+
+def _kind(mode: int) -> str:
+    import stat
+
+    for test, word in ((stat.S_ISFIFO, "FIFO (named pipe)"), (stat.S_ISCHR, "character device"),
+                       (stat.S_ISBLK, "block device"), (stat.S_ISSOCK, "socket"),
+                       (stat.S_ISDIR, "folder")):
+        if test(mode):
+            return word
+    return "special file"
+
+
+def read_regular(path: Path, cap: int, what: str, error: type = DataError) -> bytes:
+    """The bytes of the file ``path`` (``what`` it is, for messages), which must be a regular
+    file of at most ``cap`` bytes: opened without blocking (``O_NONBLOCK``: a FIFO is refused,
+    not waited on), checked with ``fstat``, and read at most ``cap + 1`` bytes so a file that
+    grows, or lies about its size, is still refused (issue 29: ``/dev/zero`` or a 3 GB sparse
+    CSV as a labels file).  ``error`` (a ReproError subclass taking ``(message, path)``)
+    otherwise; the message never quotes the file's content."""
+    import os
+    import stat
+
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    except FileNotFoundError:
+        raise error(f"{what} not found", path) from None
+    except (OSError, ValueError) as e:  # ValueError: a NUL in the name
+        why = getattr(e, "strerror", None) or "not a valid path"
+        raise error(f"cannot read {what} ({why})", path) from None
+    with os.fdopen(fd, "rb", buffering=0) as f:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise error(f"{what} is a {_kind(st.st_mode)}, not a regular file", path)
+        if st.st_size > cap:
+            raise error(f"{what} is {_mib(st.st_size)}, over the {_mib(cap)} cap; not read",
+                        path)
+        chunks, n = [], 0
+        try:
+            while n <= cap:
+                b = f.read(cap + 1 - n)
+                if not b:
+                    break
+                chunks.append(b)
+                n += len(b)
+        except OSError as e:
+            raise error(f"cannot read {what} ({e.strerror})", path) from None
+        if n > cap:
+            raise error(f"{what} is over the {_mib(cap)} cap (it grew while read); not read",
+                        path)
+        return b"".join(chunks)
+
+
 def _mib(n: int) -> str:
-    return f"{n / 1024 ** 2:,.1f} MiB"
+    """A size for messages: bytes under 1 MiB (a lowered cap is not "0.0 MiB"), else MiB."""
+    return f"{n:,} bytes" if n < 1024 ** 2 else f"{n / 1024 ** 2:,.1f} MiB"
 
 
 class _TarCapError(Exception):
@@ -109,7 +204,8 @@ class _CappedTarInfo(tarfile.TarInfo):
         return super()._proc_member(tf)
 
 
-def iter_source(source: Path, kind_of: Callable[[str], str | None] | None = None
+def iter_source(source: Path, kind_of: Callable[[str], str | None] | None = None,
+                on_skip: Callable[[str], None] | None = None
                 ) -> Iterator[tuple[str, str, bytes]]:
     """Yield (kind, label-for-errors, bytes) for each .bvh, .json and cfg label file (the
     built-in stand-in's kinds; or each file to which ``kind_of``, given the path inside the
@@ -118,6 +214,10 @@ def iter_source(source: Path, kind_of: Callable[[str], str | None] | None = None
     Sizes are checked before anything is read: a file over :data:`MAX_MEMBER_BYTES`, or a
     source whose files add up to more than :data:`MAX_SOURCE_BYTES`, is a DataError naming the
     archive, the member and the cap (from the tar header's ``size``; for a folder, ``stat``).
+    ``on_skip``, if given, is called with the path of each file (not folder) given no kind.
+    An archive is streamed in bounded memory: at most :data:`MAX_MEMBERS` entries, and
+    :mod:`tarfile`'s list of the members seen is emptied as it goes (it kept every TarInfo:
+    100,000 members of 4 KB names held 470 MB).
     """
     total = 0
 
@@ -143,16 +243,18 @@ def iter_source(source: Path, kind_of: Callable[[str], str | None] | None = None
         return None
 
     kind_of = kind_of or bandai_kind
+    check_source(source)
     if source.is_dir():
         for p in sorted(source.rglob("*")):
             k = kind_of(p.relative_to(source).as_posix())
             if k and not inside(p, source):
-                raise DataError("a symbolic link that leads out of the source folder (copy "
-                                "the file in instead)", p)
+                raise DataError(_OUT_OR_LOOP, p)
             if k and p.is_file():
                 admit(p.stat().st_size, str(source), p.relative_to(source).as_posix(),
                       read=True)
                 yield k, str(p), p.read_bytes()
+            elif not k and on_skip is not None and p.is_file():
+                on_skip(p.relative_to(source).as_posix())
         return
     import lzma
     import zlib
@@ -169,10 +271,24 @@ def iter_source(source: Path, kind_of: Callable[[str], str | None] | None = None
         raise DataError(why, source) from None
     try:
         with raw, tf:
-            for m in tf:
+            count = 0
+            while (m := tf.next()) is not None:
+                tf.members = []  # streamed: nothing looks back (tarfile kept every TarInfo)
+                count += 1
+                if count > MAX_MEMBERS:
+                    raise DataError(f"the archive holds over {MAX_MEMBERS:,} entries, the cap "
+                                    "(sources.MAX_MEMBERS); not read further", source)
+                if len(m.name) > MAX_MEMBER_NAME or m.name.count("/") > MAX_MEMBER_DEPTH:
+                    raise DataError(f"a member's path of {len(m.name):,} characters and "
+                                    f"{m.name.count('/'):,} folders is over the cap "
+                                    f"({MAX_MEMBER_NAME} characters, {MAX_MEMBER_DEPTH} "
+                                    "folders: sources.MAX_MEMBER_NAME / MAX_MEMBER_DEPTH); "
+                                    "not read", source)
                 k = kind_of(m.name)
                 if m.isfile():  # the header is read; the member's data is not yet
                     admit(m.size, str(source), m.name, read=k is not None)
+                if k is None and on_skip is not None and not m.isdir():
+                    on_skip(m.name)
                 if k is None or not m.isfile():
                     continue
                 fh = tf.extractfile(m)

@@ -92,6 +92,17 @@ def frames_to_seconds(frame: int, fps: float) -> float:
     return float(frame) / _check_rate(fps)
 
 
+def resampled_frames(n_frames: int, src_fps: float, dst_fps: float) -> int:
+    """How many frames a clip of ``n_frames`` at ``src_fps`` has once resampled to ``dst_fps``
+    (:func:`repro.motion.resample.frame_positions`' count, ``floor((T − 1)·dst/src) + 1``: no
+    extrapolation past the last frame), computed without allocating anything, so that a cap on
+    the result can be checked before a clip is converted (issue 29)."""
+    src_fps, dst_fps = _check_rate(src_fps), _check_rate(dst_fps)
+    if n_frames < 1:
+        raise ValueError(f"n_frames must be >= 1, got {n_frames}")
+    return int(math.floor((n_frames - 1) / (src_fps / dst_fps) + 1e-9)) + 1
+
+
 def subsample_step(source_fps: float, target_fps: float = 20.0) -> int:
     """MultiAct's subsampling step: ``int(round(source_fps) / target_fps)``, at least 1.
 

@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import secrets
 import signal
 import socket
@@ -69,19 +70,88 @@ def import_ray():
     return ray
 
 
-def _check_address(address: str) -> None:
-    """Fail fast when nothing listens at ``host:port`` (``ray://host:port`` too): Ray itself
-    retries an unreachable address for minutes before it gives up."""
-    hostport = address.split("://", 1)[-1].rstrip("/")
-    host, sep, port = hostport.rpartition(":")
-    if not sep or not port.isdigit():
-        return  # "auto", "local" or a form Ray resolves itself
+#: an ``--address`` (or ``RAY_ADDRESS``) longer than this is refused before it is parsed
+MAX_ADDRESS_CHARS = 300
+_HOST = r"(?:[A-Za-z0-9](?:[A-Za-z0-9._-]*[A-Za-z0-9])?|\[[0-9A-Fa-f:.]+\])"
+_ADDRESS = re.compile(rf"(?P<client>ray://)?(?P<host>{_HOST})(?::(?P<port>[0-9]+))?")
+#: Ray Client's port when ``ray://HOST`` names none (Ray's own default)
+RAY_CLIENT_PORT = 10001
+#: HTTP/2's client connection preface and an empty SETTINGS frame: a gRPC server (a Ray head
+#: node's GCS, a Ray Client server) answers with its own SETTINGS frame at once
+_H2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n\x00\x00\x00\x04\x00\x00\x00\x00\x00"
+_FORMS = ("HOST:PORT of the head node (port 1-65535), ray://HOST[:PORT] (Ray Client), auto "
+          "or local")
+
+
+def parse_address(address: str, where: str = "--address") -> tuple[str, int, bool] | None:
+    """``(host, port, client)`` of a Ray address, or None for ``auto`` (Ray finds the cluster
+    itself) and ``local`` (Ray starts a new local instance); ``ray://HOST`` without a port is
+    Ray Client's default port :data:`RAY_CLIENT_PORT`, as Ray reads it; anything else (no port, an empty host or port, a port outside 1-65535, a scheme
+    other than ``ray://``, ``ray://`` without Ray Client's ``grpc`` module) is a
+    :class:`ConfigError` naming ``where`` (``--address`` or ``RAY_ADDRESS``), before any work.
+    """
+    if address in ("auto", "local"):
+        return None
+    if len(address) > MAX_ADDRESS_CHARS:
+        raise ConfigError(f"{where}: {len(address)} characters is no Ray address; give {_FORMS}")
+    m = _ADDRESS.fullmatch(address)
+    if m is None:
+        raise ConfigError(f"{where} {address}: not a Ray address; give {_FORMS}")
+    if m["port"] is None and m["client"] is None:
+        raise ConfigError(f"{where} {address}: no port; give {_FORMS}")
+    text = m["port"] if m["port"] is not None else str(RAY_CLIENT_PORT)
+    port = int(text) if len(text) <= 5 else 0
+    if not 1 <= port <= 65535:
+        raise ConfigError(f"{where} {address}: port {m['port']} is not in 1-65535")
+    client = m["client"] is not None
+    if client and _ray_client_missing() is not None:
+        raise ConfigError(f"{where} {address}: ray:// connects through Ray Client, which needs "
+                          f"its extra ({_ray_client_missing()}): pip install 'ray[client]'")
+    return m["host"].strip("[]"), port, client
+
+
+def _ray_client_missing() -> str | None:
+    """Why Ray Client cannot run here (Ray's own test: its ``grpc`` module is importable),
+    or None."""
+    import importlib.util
+
+    return None if importlib.util.find_spec("grpc") is not None else "no module named 'grpc'"
+
+
+def _check_address(address: str, where: str = "--address") -> None:
+    """Refuse, in one line and within :data:`repro.netprobe.PROBE_TIMEOUT_S`, an address Ray
+    would retry for minutes (issue 29, item 9): nothing listens there, or what listens does not
+    answer an HTTP/2 (gRPC) preface with a SETTINGS frame within it (a plain HTTP server, a
+    listener that never answers).  ``auto`` is left to Ray; a cluster whose GCS speaks TLS
+    (``RAY_USE_TLS``) is only checked for a listener."""
+    from repro import netprobe
+
+    parsed = parse_address(address, where)
+    if parsed is None:
+        return
+    host, port, _ = parsed
+    tls = os.environ.get("RAY_USE_TLS", "").lower() in ("1", "true")
     try:
-        with socket.create_connection((host or "127.0.0.1", int(port)), timeout=5.0):
-            pass
+        reply = netprobe.exchange(host, port, b"" if tls else _H2_PREFACE,
+                                  enough=lambda b: tls or len(b) >= 9)
+    except TimeoutError:
+        raise ConfigError(f"{where} {address}: nothing answered within "
+                          f"{netprobe.PROBE_TIMEOUT_S:g} s (a Ray cluster answers at once); give "
+                          "the head node's GCS address (HOST:6379) or Ray Client's "
+                          "(ray://HOST:10001)") from None
     except OSError as e:
-        raise ConfigError(f"--address {address}: no Ray cluster answers there ({e}); start one "
+        raise ConfigError(f"{where} {address}: no Ray cluster answers there ({e}); start one "
                           "with `ray start --head` or give the head node's address") from None
+    if tls:
+        return
+    if len(reply) < 9 or reply[3] != 0x04 or reply[5:9] != bytes(4):
+        what = ("an HTTP server answers there" if reply.lstrip().startswith((b"HTTP/", b"<"))
+                else
+                "the server there closed the connection unanswered" if not reply
+                else "the server there does not speak gRPC")
+        raise ConfigError(f"{where} {address}: {what}, not a Ray cluster; give "
+                          "the head node's GCS address (HOST:6379) or Ray Client's "
+                          "(ray://HOST:10001)")
 
 
 def _forwarded_env() -> dict[str, str]:
@@ -152,16 +222,22 @@ class RayBackend:
     Client, ``auto``); ``None`` connects where ``RAY_ADDRESS`` says or, without it, starts a Ray
     instance on this machine for the run.  A Ray already initialised in this process (a test,
     a notebook) is used as it is and left running.  Ray is imported here, and an ``address``
-    where nothing listens is refused here (:func:`_check_address`), so a missing install or a
+    (or ``RAY_ADDRESS``) of another form (:func:`parse_address`) or where no gRPC server
+    answers within seconds (:func:`_check_address`) is refused here, so a missing install or a
     mistyped address fails before anything is computed (the evaluators train before the graph
-    runs); the cluster is joined only when a graph has jobs to run.
+    runs); the cluster is joined only when a graph has jobs to run.  A SIGTERM while
+    ``ray.init`` connects ends the run INTERRUPTED, as one at any other time.
     """
 
     def __init__(self, address: str | None = None):
+        if address is not None:
+            parse_address(address)  # the form first: a typo needs no Ray to be refused
         self.ray = import_ray()
         self.address = address
-        if address:
+        if address and address != "auto":
             _check_address(address)
+        elif os.environ.get("RAY_ADDRESS", "").strip():  # where Ray itself will connect
+            _check_address(os.environ["RAY_ADDRESS"].strip(), "RAY_ADDRESS")
 
     def __call__(self, store: Store, hook: ProgressHook, by_key: dict[str, Job],
                  threads: int | None) -> _RaySession:
@@ -197,9 +273,22 @@ class _RaySession(Backend):
             try:
                 ray.init(address=self.cfg.address, log_to_driver=False,
                          logging_level=logging.WARNING)
-            except ConnectionError as e:
+            except (ConnectionError, TimeoutError, ValueError) as e:
                 raise ConfigError(f"--address {self.cfg.address or 'auto'}: cannot connect to "
                                   f"a Ray cluster ({e})") from None
+            except SystemExit as e:
+                # Ray's own handler (sys.exit) met a SIGTERM while it connected: hand the
+                # signal to the handler that was in place (the executor's: KeyboardInterrupt,
+                # the run recorded INTERRUPTED, not FAILED)
+                if e.code != signal.SIGTERM:
+                    raise
+                self._abandon_init()
+                if callable(sigterm):
+                    sigterm(signal.SIGTERM, None)
+                raise KeyboardInterrupt("SIGTERM") from None
+            except KeyboardInterrupt:
+                self._abandon_init()
+                raise
             finally:
                 if (threading.current_thread() is threading.main_thread()
                         and sigterm is not None):
@@ -211,6 +300,14 @@ class _RaySession(Backend):
             self.__exit__(None, None, None)
             raise
         return self
+
+    def _abandon_init(self) -> None:
+        """Undo a ``ray.init`` cut short by a signal (best effort: Ray may be half set up)."""
+        try:
+            if self.ray.is_initialized():
+                self.ray.shutdown()
+        except Exception:  # noqa: BLE001 - the interrupt is what the caller must see
+            pass
 
     def _open(self) -> None:
         ray = self.ray

@@ -464,13 +464,16 @@ def latest_run(table: str, scale: str | None = None, dataset: str | None = None,
     """The newest FINISHED run folder of ``table`` (optionally for a scale / data set, and
     made with or without ``--retrain``); with ``plain`` (the default) only runs at the
     profile's budget with the default evaluator seed (a sweep's other points are not "the"
-    run of a table)."""
-    from repro.store.runs import FINISHED, read_run_json, run_dirs
+    run of a table).  A run whose ``run.json`` or ``summary.json`` is damaged is skipped with
+    one warning naming it (the next newest good run is used)."""
+    from repro.store.run_checks import warn_bad_run as _warn_bad_run
+    from repro.store.runs import FINISHED, read_run_json, read_summary, run_dirs
 
     for d in reversed(run_dirs()):
         try:
             rj = read_run_json(d)
-        except ReproError:
+        except ReproError as e:
+            _warn_bad_run(d, e)
             continue
         if rj.get("table") != table or rj.get("status") != FINISHED:
             continue
@@ -481,7 +484,12 @@ def latest_run(table: str, scale: str | None = None, dataset: str | None = None,
         cfg = rj.get("config") or {}
         if retrain is not None and bool(cfg.get("retrain")) != retrain:
             continue
-        if plain and (float(cfg.get("budget", 1.0)) != 1.0 or int(cfg.get("evaluator_seed", 0))):
+        if plain and (cfg.get("budget", 1.0) != 1.0 or cfg.get("evaluator_seed", 0)):
+            continue  # both checked as numbers by read_run_json
+        try:
+            read_summary(d, required=True)
+        except ReproError as e:
+            _warn_bad_run(d, e)
             continue
         return d
     return None
@@ -509,8 +517,10 @@ def table_view(name: str, *, scale: str = "quick", dataset: str | None = None, r
     sc = _scale(scale, dataset)
     path = table_run(spec, scale, dataset, run or None)
     if path is not None:
-        summary = json.loads((path / "summary.json").read_text())
-        rj = json.loads((path / "run.json").read_text())
+        from repro.store.runs import read_run_json, read_summary
+
+        summary = read_summary(path, required=True)
+        rj = read_run_json(path)
         return make_view(spec, summary.get("rows", {}), summary, summary.get("footer", []),
                          rj.get("dataset"))
     plan = build_plan(spec, sc, dataset)
@@ -559,7 +569,7 @@ def verify_table(name: str, baseline_dir: str | Path, *, scale: str = "quick",
     of training seeds; such a run is preferred).  A run made unpinned (or under another pin
     version) against a pinned baseline is a ConfigError, and a note under ``tolerance``."""
     from repro.engine.baselines import compare, host_lines, host_note, load_baseline, refusal
-    from repro.store.runs import read_run_json
+    from repro.store.runs import read_run_json, read_summary
 
     spec = _spec(name)
     sc = _scale(scale, dataset)
@@ -579,7 +589,7 @@ def verify_table(name: str, baseline_dir: str | Path, *, scale: str = "quick",
         raise ConfigError(f"{spec.id}: run {path.name}: {why}")
     if why is not None:
         notes.append(f"compared under --tolerance although {why.split(':')[0]}")
-    summary = json.loads((path / "summary.json").read_text())
+    summary = read_summary(path, required=True)
     retrain = bool((rj.get("config") or {}).get("retrain"))
     if tolerance is not None:
         notes.append(f"run {path.name}; tolerance {tolerance:g} x the "

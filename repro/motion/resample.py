@@ -31,7 +31,7 @@ import torch
 from repro.motion.motion import Motion
 from repro.motion.rotations import matrix_to_6d, quat_to_matrix, sixd_to_quat
 
-__all__ = ["frame_positions", "slerp", "resample_quaternions",
+__all__ = ["frame_positions", "bracket", "slerp", "resample_quaternions",
            "resample_linear", "resample_fps", "subsample_step", "step_for", "resample_clip"]
 
 
@@ -51,7 +51,10 @@ def frame_positions(n_frames: int, src_fps: float, dst_fps: float) -> np.ndarray
     return np.arange(K, dtype=np.float64) * ratio
 
 
-def _bracket(n_frames: int, src_fps: float, dst_fps: float):
+def bracket(n_frames: int, src_fps: float, dst_fps: float):
+    """The source frames either side of each output frame and the fraction between them:
+    ``(i0, i1, w)`` (int64 tensors, a float64 array) for :func:`frame_positions`; the
+    resamplers here and :func:`repro.data.prepare_caps.resample_clip`'s slices share them."""
     s = frame_positions(n_frames, src_fps, dst_fps)
     i0 = np.minimum(np.floor(s + 1e-9).astype(np.int64), max(n_frames - 2, 0))
     w = np.clip(s - i0, 0.0, 1.0) if n_frames > 1 else np.zeros_like(s)
@@ -80,7 +83,7 @@ def resample_quaternions(quats, src_fps: float, dst_fps: float):
     if src_fps == dst_fps:
         out = q.clone()
     else:
-        i0, i1, w = _bracket(q.shape[0], src_fps, dst_fps)
+        i0, i1, w = bracket(q.shape[0], src_fps, dst_fps)
         wt = torch.as_tensor(w, dtype=q.dtype).reshape((-1,) + (1,) * (q.dim() - 2))
         wt = wt.expand(q[i0].shape[:-1])
         out = slerp(q[i0], q[i1], wt)
@@ -93,7 +96,7 @@ def resample_linear(x, src_fps: float, dst_fps: float):
     if src_fps == dst_fps:
         out = t.clone()
     else:
-        i0, i1, w = _bracket(t.shape[0], src_fps, dst_fps)
+        i0, i1, w = bracket(t.shape[0], src_fps, dst_fps)
         wt = torch.as_tensor(w, dtype=t.dtype).reshape((-1,) + (1,) * (t.dim() - 1))
         out = (1 - wt) * t[i0] + wt * t[i1]
     return out.numpy() if was_np else out

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import csv
 import functools
+import io
 import json
 import math
 import os.path
@@ -157,8 +158,12 @@ def _finish(fig: Figure, handles: list, path, dpi: int) -> None:
     if handles:
         fig.legend(handles=handles, loc="lower center", ncol=min(4, len(handles)),
                    bbox_to_anchor=(0.5, 0.02 / fig.get_figheight()), frameon=False)
+    from repro.store.atomic import write_output
+
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi, format="png", metadata={"Software": None}, facecolor="white")
+    buf = io.BytesIO()  # then written beside the name and renamed: never through a link
+    fig.savefig(buf, dpi=dpi, format="png", metadata={"Software": None}, facecolor="white")
+    write_output(path, buf.getvalue())
 
 
 def _message(path, lines, message: str, dpi: int, detail: str = "") -> None:
@@ -176,15 +181,18 @@ def write_data(path, records: list[dict], fields, meta: dict) -> None:
     p = Path(path)
     if p.suffix not in (".csv", ".json"):
         raise ValueError(f"data file must end in .csv or .json: {p}")
+    from repro.store.atomic import write_output
+
     p.parent.mkdir(parents=True, exist_ok=True)
     if p.suffix == ".json":
-        p.write_text(json.dumps({"schema": 1, **meta, "records": records}, indent=1,
-                                ensure_ascii=False) + "\n", encoding="utf-8")
+        write_output(p, json.dumps({"schema": 1, **meta, "records": records}, indent=1,
+                                   ensure_ascii=False) + "\n")
         return
-    with open(p, "w", newline="", encoding="utf-8") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(fields), extrasaction="ignore")
-        w.writeheader()
-        w.writerows({k: ("" if r.get(k) is None else r[k]) for k in fields} for r in records)
+    fh = io.StringIO(newline="")
+    w = csv.DictWriter(fh, fieldnames=list(fields), extrasaction="ignore")
+    w.writeheader()
+    w.writerows({k: ("" if r.get(k) is None else r[k]) for k in fields} for r in records)
+    write_output(p, fh.getvalue())
 
 
 def _cell_record(row: RowView, col: ColumnView, x, c: CellView | None) -> dict:

@@ -319,12 +319,19 @@ def _segment_marks(canvas, texts, p, frames, boxes, cw):
 
 def atomic_write(path, write) -> Path:
     """Call ``write(tmp)`` for a fresh temporary path beside ``path`` (created with the usual
-    permissions, i.e. the umask), then ``os.replace`` it onto ``path``; returns ``path``."""
+    permissions, i.e. the umask), then ``os.replace`` it onto ``path``; returns ``path``.
+    The rename replaces a link at ``path`` instead of writing through it; an OS error is a
+    ConfigError naming the file."""
+    from repro.errors import ConfigError
+
     path = Path(path)
     tmp = path.parent / f".{path.name}.tmp-{os.getpid()}-{secrets.token_hex(4)}{path.suffix}"
     try:
         write(str(tmp))
         os.replace(tmp, path)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        raise ConfigError(f"cannot write {str(path)!r}: {e.strerror or e}") from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise

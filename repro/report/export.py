@@ -115,7 +115,7 @@ def export_samples(rs, out: str | Path, *, row: str | None = None,
     import torch
 
     from repro.data.bvh_write import write_bvh
-    from repro.store.atomic import atomic_write_bytes
+    from repro.store.atomic import output_dir, write_output
 
     if fmt not in FORMATS:
         raise ConfigError(f"unknown export format {fmt!r} (choose from {', '.join(FORMATS)})")
@@ -158,15 +158,15 @@ def export_samples(rs, out: str | Path, *, row: str | None = None,
                               "positions only (ODMO's xyz windows); BVH needs rotations: use "
                               "--format npz")
         todo += [(r, b, g, *piece) for piece in _pieces(b, g, item)]  # checks `item`
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_dir(out)  # '' (the current folder), a file, a device: one error line
+
     def npz(name: str, sk, fps: float, r, meta: dict, **arrays) -> None:
         buf = io.BytesIO()
         np.savez_compressed(
             buf, **arrays, names=np.array(sk.names), parents=np.array(sk.parents, dtype=np.int64),
             fps=np.float64(fps), meta=np.array(json.dumps(
                 {"table": rs.spec.id, "run": rs.run_id, "row": r.row_id, **meta}, sort_keys=True)))
-        atomic_write_bytes(out / name, buf.getvalue())
+        write_output(out / name, buf.getvalue())
 
     for r, b, g, suffix, parts, meta in todo:
         stem = f"{r.row_id}{f'-band{r.band}' if multi_band else ''}-r{r.replicate}-{suffix}"
@@ -185,8 +185,12 @@ def export_samples(rs, out: str | Path, *, row: str | None = None,
                 from repro.data.bandai import DUMMY_ROOT
 
                 name = f"{stem}.bvh"
-                write_bvh(out / name, sk, root.numpy(), one.rotmats()[0].double().numpy(), fps,
-                          dummy_root=DUMMY_ROOT if dummy_root else None)
+                try:  # written beside the name and renamed: a link there is replaced
+                    write_bvh(out / name, sk, root.numpy(), one.rotmats()[0].double().numpy(),
+                              fps, dummy_root=DUMMY_ROOT if dummy_root else None)
+                except OSError as e:
+                    raise ConfigError(f"cannot write {str(out / name)!r}: "
+                                      f"{e.strerror or e}") from None
             else:
                 name = f"{stem}.npz"
                 npz(name, sk, fps, r, meta, joints=one.joints()[0].double().numpy(),
@@ -194,6 +198,5 @@ def export_samples(rs, out: str | Path, *, row: str | None = None,
         record["files"].append({"file": name, "row": r.row_id, "band": r.band,
                                 "protocol": b.protocol_id, "replicate": r.replicate,
                                 "seed": r.seed, "fps": fps, **meta})
-    atomic_write_bytes(out / "export.json",
-                       (json.dumps(record, indent=1, sort_keys=True) + "\n").encode())
+    write_output(out / "export.json", json.dumps(record, indent=1, sort_keys=True) + "\n")
     return record

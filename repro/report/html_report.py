@@ -13,6 +13,11 @@
   id, code commit, data fingerprint, evaluator fingerprints, scale, machine, packages);
 - ``<paper>-<table>/``: that page's images and data files.
 
+Every file is written beside its name and renamed over it (:mod:`repro.store.atomic`), so a
+link already in ``out`` (``index.html -> ~/notes.txt``, a linked ``<paper>-<table>/``) is
+replaced, never written through; an ``out`` that is a file, a device or cannot be made is one
+error line.
+
 No server, no network: styles are inline, images are relative files.  Each page carries a
 small script that, once loaded, checks that every image decoded and records the result on
 ``<body data-images-ok data-images-failed data-script-errors>``; a failure also shows a
@@ -27,6 +32,7 @@ from pathlib import Path
 
 from repro.report.render import html_table
 from repro.report.view import FigureView
+from repro.store.atomic import output_dir, output_subdir, write_output
 
 E = html.escape
 
@@ -158,8 +164,7 @@ def table_page(table_id: str, out: Path, *, scale: str = "quick", dataset: str |
     rj = read_run_json(path) if path is not None else None
     view = table_view(spec.id, scale=scale, dataset=dataset, run=path.name if path else None)
     name = page_name(spec.id)
-    assets = out / name[:-5]
-    assets.mkdir(parents=True, exist_ok=True)
+    assets = output_subdir(out, name[:-5])  # a link planted there is replaced, not followed
     rel = assets.name
     body = [f"<p><a href=\"index.html\">← all tables</a></p>",
             f"<h1>{E(spec.id)}: {E(spec.title)}</h1>"]
@@ -227,7 +232,7 @@ def table_page(table_id: str, out: Path, *, scale: str = "quick", dataset: str |
     body.append("<h2>Provenance</h2><dl>" + "".join(
         f"<dt>{E(k)}</dt><dd>{E(v)}</dd>" for k, v in provenance(rj, view)) + "</dl>")
     body += [f"<p class=\"muted\">{E(x)}</p>" for x in view.footer]
-    (out / name).write_text(_page(f"{spec.id} — repro report", body), encoding="utf-8")
+    write_output(out / name, _page(f"{spec.id} — repro report", body))
     return {"table": spec.id, "page": name, "state": state, "strips": n_strips,
             "claims": [(c.verdict, c.text) for c in view.claims], "title": spec.title}
 
@@ -241,11 +246,10 @@ def write_report(tables: list[str], out: str | Path, *, scale: str = "quick",
 
     from repro.errors import ConfigError
 
-    out = Path(out)
     if run is not None and len(set(tables)) > 1:
         raise ConfigError("--run names one run, of one table; give one table with it")
     ids = list(dict.fromkeys(_spec(t).id for t in tables))
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_dir(out)
     done = {t: table_page(t, out, scale=scale, dataset=dataset,
                           run=run if len(ids) == 1 else None, items=items, strips=strips)
             for t in ids}
@@ -269,8 +273,8 @@ def write_report(tables: list[str], out: str | Path, *, scale: str = "quick",
             "<table><tr><th>table</th><th>title</th><th>state</th><th>strips</th>"
             "<th>claim verdicts</th></tr>", *rows, "</table>"]
     index = out / "index.html"
-    index.write_text(_page("repro report", body), encoding="utf-8")
-    (out / "report.json").write_text(json.dumps({"schema": 1, "scale": scale,
-                                                 "tables": list(done.values())}, indent=1,
-                                                sort_keys=True) + "\n", encoding="utf-8")
+    write_output(index, _page("repro report", body))
+    write_output(out / "report.json", json.dumps({"schema": 1, "scale": scale,
+                                                  "tables": list(done.values())}, indent=1,
+                                                 sort_keys=True) + "\n")
     return index

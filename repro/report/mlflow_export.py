@@ -40,13 +40,16 @@ error: the record is immutable); a metric entry only when its (key, step) is abs
 same check; tags and artifacts are written again with the same content.  A second export of a
 run therefore changes nothing.
 
+The note.  ``mlflow.note.content`` is the table as Markdown, which MLflow's UI renders: its
+``<`` and ``>`` are written as ``&lt;`` / ``&gt;`` (:func:`note_text`), so a label in a spec
+shows as text and never becomes HTML there (issue 29, item 11).
+
 MLflow is an optional extra (``pip install 'repro[mlflow]'``: mlflow-skinny), imported only
 here and only when an export runs.  mlflow-skinny opens file stores (a folder, ``file:``) and
 tracking servers (``http(s)://``); a ``sqlite:`` or other SQL store needs the full ``mlflow``
-package.  MLflow 3 refuses file stores unless ``MLFLOW_ALLOW_FILE_STORE`` is true: naming one
-with ``--mlflow`` is taken as that choice (the variable is set for this process when unset).
-``MLFLOW_DISABLE_TELEMETRY`` is set too when unset, so an export sends nothing anywhere but to
-the store named.
+package.  The store is opened and checked (an existing folder that is no store, a server that
+does not answer within seconds, the variables MLflow is given) by
+:mod:`repro.report.mlflow_store`.
 """
 
 from __future__ import annotations
@@ -54,7 +57,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
 import re
 import shutil
 import tempfile
@@ -65,9 +67,15 @@ from pathlib import Path
 from typing import Any
 
 from repro.errors import ConfigError, DataError, ReproError
+from repro.report.mlflow_store import (  # noqa: F401 (also this module's names, as before)
+    INSTALL_HINT,
+    RUN_ID_TAG,
+    SQL_SCHEMES,
+    Store,
+    is_file_store,
+    tracking_uri,
+)
 
-INSTALL_HINT = "pip install 'repro[mlflow]'"
-RUN_ID_TAG = "repro.run_id"
 KEYS_JSON = "keys.json"
 #: MLflow's limits (mlflow.utils.validation) on one value and on one log_batch call
 MAX_PARAM_VALUE, MAX_TAG_VALUE = 6000, 8000
@@ -293,6 +301,12 @@ def _meaning(keys: dict, key: str, meaning: dict) -> None:
         raise DataError(f"the MLflow key {key!r} would hold both {had} and {meaning}")
 
 
+def note_text(markdown: str) -> str:
+    """The run's description (module docstring, "The note"): ``markdown`` with no HTML tag
+    left, ``<`` and ``>`` as entities (an ``&lt;`` already there stays as it is)."""
+    return markdown.replace("<", "&lt;").replace(">", "&gt;")
+
+
 def _record_file(path: list) -> str:
     return "trainings.json" if path and path[0] == "method" else "run.json"
 
@@ -328,6 +342,7 @@ def write_artifacts(rec, out: Path, keys: dict, *, pictures: bool = True) -> lis
     if pictures:
         from repro.report.html_report import table_page
 
+        (out / "report").mkdir()  # table_page writes into a folder that exists
         try:
             page = table_page(table, out / "report", run=str(rec.path))
         except ReproError as e:
@@ -340,144 +355,7 @@ def write_artifacts(rec, out: Path, keys: dict, *, pictures: bool = True) -> lis
 
 
 # ---------------------------------------------------------------------- MLflow
-def _import_mlflow(uri: str):
-    """Import MLflow for an export to ``uri`` (module docstring: the two variables)."""
-    os.environ.setdefault("MLFLOW_DISABLE_TELEMETRY", "true")
-    if is_file_store(uri):
-        os.environ.setdefault("MLFLOW_ALLOW_FILE_STORE", "true")
-    try:
-        import mlflow  # noqa: F401
-        from mlflow.tracking import MlflowClient
-    except ImportError as e:
-        raise ConfigError(f"--mlflow needs MLflow, which is not installed ({e}): "
-                          f"{INSTALL_HINT}") from None
-    return MlflowClient
-
-
-def is_file_store(uri: str) -> bool:
-    """Whether ``uri`` names a file store: ``file:...`` or a plain path."""
-    return uri.startswith("file:") or not re.match(r"^[A-Za-z][A-Za-z0-9+.\-]*:", uri)
-
-
-def tracking_uri(uri: str) -> str:
-    """``uri`` as MLflow gets it: a plain path becomes an absolute ``file://`` URI (so a
-    relative folder means the same whatever the working directory MLflow later runs in)."""
-    if not uri.strip():
-        raise ConfigError("--mlflow: give a tracking URI (a folder, file:/path, sqlite:///x.db, "
-                          "http://host:port)")
-    if is_file_store(uri) and not uri.startswith("file:"):
-        p = Path(uri).expanduser().resolve()
-        if p.exists() and not p.is_dir():
-            raise ConfigError(f"--mlflow {uri}: not a folder (an MLflow file store is one)")
-        return p.as_uri()
-    return uri
-
-
-#: URI schemes of MLflow's SQL stores (``sqlite:///x.db``, ``postgresql+psycopg2://...``)
-SQL_SCHEMES = ("sqlite", "mysql", "postgresql", "mssql")
-
-
-def _check_uri(uri: str) -> None:
-    """Refuse, in one line and before MLflow is asked, a URI this installation cannot serve: a
-    SQL store without SQLAlchemy (mlflow-skinny has none), an http(s) server that does not
-    accept a connection (MLflow itself would retry for minutes)."""
-    import importlib.util
-    from urllib.parse import urlparse
-
-    u = urlparse(uri)
-    scheme = u.scheme.split("+")[0].lower()
-    if scheme in SQL_SCHEMES and importlib.util.find_spec("sqlalchemy") is None:
-        from importlib.metadata import PackageNotFoundError, version
-
-        try:
-            pin = f"=={version('mlflow-skinny')}"  # the full package of the same release
-        except PackageNotFoundError:
-            pin = ""
-        raise ConfigError(f"--mlflow {uri}: a {scheme} store needs the full MLflow package "
-                          f"(pip install 'mlflow{pin}'); mlflow-skinny, which the [mlflow] "
-                          "extra installs, opens a folder, file:/path or http(s)://host:port")
-    if scheme in ("http", "https"):
-        import socket
-
-        try:
-            port = u.port or (443 if scheme == "https" else 80)
-            socket.create_connection((u.hostname or "", port), timeout=10).close()
-        except (OSError, ValueError) as e:
-            raise ConfigError(f"--mlflow {uri}: no tracking server answers at "
-                              f"{u.netloc} ({e})") from None
-
-
-class _Store:
-    """One MLflow tracking store, opened once per command; MLflow's own errors (an unknown
-    scheme, a store it cannot open or write) become a one-line :class:`ConfigError`."""
-
-    def __init__(self, uri: str):
-        self.uri = tracking_uri(uri)
-        _check_uri(self.uri)
-        client_class = _import_mlflow(self.uri)
-        from mlflow.exceptions import MlflowException
-        from mlflow.tracking.registry import UnsupportedModelRegistryStoreURIException
-
-        self._errors = (MlflowException, OSError, ImportError, ValueError)
-        try:
-            self.client = client_class(tracking_uri=self.uri)
-        except UnsupportedModelRegistryStoreURIException:  # MLflow checks its registry first
-            raise ConfigError(f"--mlflow {self.uri}: MLflow has no store for this scheme "
-                              "(a folder, file:/path, http(s)://host:port; sqlite:///x.db "
-                              "with the full mlflow package)") from None
-        except self._errors as e:
-            raise ConfigError(f"--mlflow {self.uri}: {_first_line(e)}") from None
-        self._call(lambda: self.client.search_experiments(max_results=1))
-
-    def _call(self, fn):
-        try:
-            return fn()
-        except self._errors as e:
-            raise ConfigError(f"--mlflow {self.uri}: {_first_line(e)}") from None
-
-    def find(self, run_id: str):
-        """The active MLflow runs tagged with repro run ``run_id``, in every experiment."""
-        from mlflow.entities import ViewType
-
-        def go():
-            exps = [e.experiment_id for e in self.client.search_experiments(
-                view_type=ViewType.ACTIVE_ONLY)]
-            if not exps:
-                return []
-            return self.client.search_runs(exps, f"tags.`{RUN_ID_TAG}` = '{run_id}'",
-                                           run_view_type=ViewType.ACTIVE_ONLY)
-        return self._call(go)
-
-    def artifact_location(self) -> str | None:
-        """Where a new experiment keeps its artifacts: for a ``sqlite:`` store the folder
-        ``mlartifacts`` beside the database file (MLflow's default, ``./mlruns`` of whatever
-        folder the export runs in, would scatter them); otherwise MLflow's default."""
-        if not self.uri.startswith("sqlite:///") or self.uri.startswith("sqlite:///:memory:"):
-            return None
-        from urllib.parse import unquote
-
-        db = Path(unquote(self.uri[len("sqlite:///"):].split("?")[0]))
-        return (db.expanduser().resolve().parent / "mlartifacts").as_uri()
-
-    def experiment_id(self, name: str) -> str:
-        def go():
-            exp = self.client.get_experiment_by_name(name)
-            if exp is None:
-                return self.client.create_experiment(
-                    name, artifact_location=self.artifact_location())
-            if exp.lifecycle_stage != "active":
-                raise ConfigError(f"--mlflow {self.uri}: experiment {name!r} is deleted; "
-                                  "restore it or give --experiment another name")
-            return exp.experiment_id
-        return self._call(go)
-
-
-def _first_line(e: BaseException) -> str:
-    msg = getattr(e, "message", None) or str(e) or type(e).__name__
-    return str(msg).strip().splitlines()[0] if str(msg).strip() else type(e).__name__
-
-
-def _mlflow_run(store: _Store, rec, ex: Export, experiment: str | None):
+def _mlflow_run(store: Store, rec, ex: Export, experiment: str | None):
     """The MLflow run of repro run ``rec``: the one tagged with its id, else a new one in
     ``ex.experiment``.  Returns (MLflow run, experiment name, created)."""
     found = store.find(rec.run_id)
@@ -488,20 +366,20 @@ def _mlflow_run(store: _Store, rec, ex: Export, experiment: str | None):
     client = store.client
     if found:
         mrun = found[0]
-        name = store._call(lambda: client.get_experiment(mrun.info.experiment_id).name)
+        name = store.call(lambda: client.get_experiment(mrun.info.experiment_id).name)
         if experiment is not None and name != experiment:
             raise ConfigError(f"run {rec.run_id} is already exported to experiment "
                               f"{name!r} of {store.uri} (MLflow run {mrun.info.run_id}); "
                               f"export it there (--experiment {name!r}) or delete that run")
         return mrun, name, False
     exp_id = store.experiment_id(ex.experiment)
-    mrun = store._call(lambda: client.create_run(exp_id, start_time=ex.start_ms,
+    mrun = store.call(lambda: client.create_run(exp_id, start_time=ex.start_ms,
                                                  tags={RUN_ID_TAG: rec.run_id},
                                                  run_name=ex.run_name))
     return mrun, ex.experiment, True
 
 
-def _missing(store: _Store, rec, ex: Export, mrun, created: bool):
+def _missing(store: Store, rec, ex: Export, mrun, created: bool):
     """The params and metric entries ``mrun`` lacks (module docstring, "Idempotence"); one
     already there with another value is an error."""
     from mlflow.entities import Metric, Param
@@ -516,7 +394,7 @@ def _missing(store: _Store, rec, ex: Export, mrun, created: bool):
     stamp = ex.end_ms or ex.start_ms or 0
     metrics = []
     for k, steps in ex.metrics.items():
-        have = {} if created else {m.step: m.value for m in store._call(
+        have = {} if created else {m.step: m.value for m in store.call(
             lambda k=k: store.client.get_metric_history(mid, k))}
         for step, x in sorted(steps.items()):
             if step not in have:
@@ -528,7 +406,7 @@ def _missing(store: _Store, rec, ex: Export, mrun, created: bool):
     return params, metrics
 
 
-def export_run(store: _Store, ref: str | Path, *, experiment: str | None = None,
+def export_run(store: Store, ref: str | Path, *, experiment: str | None = None,
                pictures: bool = True) -> dict[str, Any]:
     """Export one run (an id, prefix, ``latest`` or a run folder) into ``store``; returns what
     was written: the MLflow run and experiment, counts of params / metric entries / tags
@@ -554,7 +432,7 @@ def export_run(store: _Store, ref: str | Path, *, experiment: str | None = None,
         notes = write_artifacts(rec, Path(tmp), ex.keys, pictures=pictures)  # before any write
         md = Path(tmp) / "table" / "table.md"  # shown by MLflow as the run's description
         if md.is_file():
-            ex.tags["mlflow.note.content"] = _fit(md.read_text(encoding="utf-8"),
+            ex.tags["mlflow.note.content"] = _fit(note_text(md.read_text(encoding="utf-8")),
                                                   MAX_TAG_VALUE, "table/table.md")
         mrun, exp_name, created = _mlflow_run(store, rec, ex, experiment)
         mid = mrun.info.run_id
@@ -565,10 +443,10 @@ def export_run(store: _Store, ref: str | Path, *, experiment: str | None = None,
                                     (metrics, MAX_METRICS_PER_BATCH, "metrics")):
             for i in range(0, len(batch), size):
                 chunk = {field_: batch[i:i + size]}
-                store._call(lambda chunk=chunk: client.log_batch(mid, **chunk))
+                store.call(lambda chunk=chunk: client.log_batch(mid, **chunk))
         n_files = sum(1 for p in Path(tmp).rglob("*") if p.is_file())
-        store._call(lambda: client.log_artifacts(mid, tmp))
-    store._call(lambda: client.set_terminated(mid, status=ex.status, end_time=ex.end_ms))
+        store.call(lambda: client.log_artifacts(mid, tmp))
+    store.call(lambda: client.set_terminated(mid, status=ex.status, end_time=ex.end_ms))
     return {"run": rec.run_id, "mlflow_run": mid, "experiment": exp_name,
             "experiment_id": mrun.info.experiment_id, "uri": store.uri, "created": created,
             "params": len(ex.params), "new_params": len(params),
@@ -587,5 +465,5 @@ def export_runs(refs: list[str | Path], uri: str, *, experiment: str | None = No
         raise ConfigError("--experiment: give a name")
     paths = [r if isinstance(r, Path) else resolve_run(str(r)) for r in refs]
     paths = list(dict.fromkeys(paths))
-    store = _Store(uri)
+    store = Store(uri)
     return [export_run(store, p, experiment=experiment, pictures=pictures) for p in paths]

@@ -83,13 +83,21 @@ def _term_tail(console, view) -> None:
         console.print(line, highlight=False, markup=False)
 
 
+def _md(s: str) -> str:
+    """Text for Markdown: HTML's ``& < >`` as entities (a spec label never becomes markup
+    where the Markdown is rendered), ``|`` escaped (it would end a table cell) and line
+    breaks as spaces (they would end the table, the heading or the list item)."""
+    s = html.escape(str(s), quote=False).replace("|", "\\|")
+    return s.replace("\r\n", " ").replace("\r", " ").replace("\n", " ")
+
+
 def _md_tail(view) -> list[str]:
     """Claims and footer lines under a Markdown table or figure."""
     lines: list[str] = []
     if view.claims:
-        lines += ["", "**Claims**", ""] + [f"- {_claim_line(cl)}" for cl in view.claims]
+        lines += ["", "**Claims**", ""] + [f"- {_md(_claim_line(cl))}" for cl in view.claims]
     if view.footer:
-        lines += [""] + [f"{x}  " for x in view.footer]
+        lines += [""] + [f"{_md(x)}  " for x in view.footer]
     return lines
 
 
@@ -137,24 +145,37 @@ def _render_term(view: TableView) -> str:
     return buf.getvalue()
 
 
+def _md_row(cells) -> str:
+    return "| " + " | ".join(_md(c) for c in cells) + " |"
+
+
 def _render_md(view: TableView) -> str:
     head = ["row", ""] + [f"{c.label}{_arrow(c.direction, c.label)}" for c in view.columns]
-    lines = [f"### {_title(view)}", "", "| " + " | ".join(head) + " |",
-             "|" + "---|" * len(head)]
+    lines = [f"### {_md(_title(view))}", "", _md_row(head), "|" + "---|" * len(head)]
     for row in view.rows:
-        lines.append("| " + " | ".join([row.label, "paper"] + [paper_text(row.cells.get(c.id, CellView()))
-                                                              for c in view.columns]) + " |")
-        lines.append("| " + " | ".join(["", "ours"] + [ours_text(row.cells.get(c.id, CellView(status=row.status)))
-                                                       for c in view.columns]) + " |")
+        lines.append(_md_row([row.label, "paper"] + [paper_text(row.cells.get(c.id, CellView()))
+                                                     for c in view.columns]))
+        lines.append(_md_row(["", "ours"] + [ours_text(row.cells.get(c.id, CellView(status=row.status)))
+                                             for c in view.columns]))
     return "\n".join(lines + _md_tail(view)) + "\n"
 
 
+#: LaTeX of each character that is not itself in LaTeX: every special (``\\ & % $ # _ { } ~
+#: ^``) and the arrows and ± the tables print
+_TEX = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_",
+        "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}",
+        "±": r"$\pm$", "↓": r"$\downarrow$", "↑": r"$\uparrow$", "→": r"$\rightarrow$",
+        "\r": " ", "\n": " "}
+
+
 def _tex(s: str) -> str:
-    for a, b in (("\\", r"\textbackslash{}"), ("&", r"\&"), ("%", r"\%"), ("_", r"\_"),
-                 ("#", r"\#"), ("±", r"$\pm$"), ("↓", r"$\downarrow$"), ("↑", r"$\uparrow$"),
-                 ("→", r"$\rightarrow$")):
-        s = s.replace(a, b)
-    return s
+    """``s`` as LaTeX text: one character at a time (so an escape is never escaped again)."""
+    return "".join(_TEX.get(ch, ch) for ch in str(s))
+
+
+def _tex_comment(s: str) -> str:
+    """A ``%`` comment line: a line break in ``s`` would end the comment and run the rest."""
+    return "% " + " ".join(str(s).splitlines())
 
 
 def _render_latex(view: TableView) -> str:
@@ -169,7 +190,8 @@ def _render_latex(view: TableView) -> str:
         out.append(" & ours & " + " & ".join(
             _tex(ours_text(row.cells.get(c.id, CellView(status=row.status)))) for c in view.columns) + r" \\")
     out += [r"\bottomrule", r"\end{tabular}", r"\end{table}"]
-    out += ["% " + _claim_line(cl) for cl in view.claims] + ["% " + x for x in view.footer]
+    out += [_tex_comment(_claim_line(cl)) for cl in view.claims]
+    out += [_tex_comment(x) for x in view.footer]
     return "\n".join(out) + "\n"
 
 
@@ -252,13 +274,13 @@ def _figure_term(view: FigureView) -> str:
 
 def _figure_md(view: FigureView) -> str:
     xlabel = view.x.label if view.x is not None else "x"
-    lines = [f"### {_title(view)}", "", view.axis_line()]
+    lines = [f"### {_md(_title(view))}", "", _md(view.axis_line())]
     for col in view.columns:
         head = [xlabel] + [r.label for r in view.rows]
-        lines += ["", f"#### {_column_title(col)}", "", "| " + " | ".join(head) + " |",
+        lines += ["", f"#### {_md(_column_title(col))}", "", _md_row(head),
                   "|" + "---|" * len(head)]
         for xs, key in view.cell_keys(col.id):
-            lines.append("| " + " | ".join([xs] + [_figure_cell(r, key) for r in view.rows]) + " |")
+            lines.append(_md_row([xs] + [_figure_cell(r, key) for r in view.rows]))
     return "\n".join(lines + _md_tail(view)) + "\n"
 
 
@@ -266,7 +288,7 @@ def _figure_latex(view: FigureView) -> str:
     xlabel = view.x.label if view.x is not None else "x"
     n = len(view.rows)
     out = [r"\begin{table}[t]", r"\centering", r"\caption{" + _tex(_title(view)) + "}",
-           "% " + view.axis_line()]
+           _tex_comment(view.axis_line())]
     for i, col in enumerate(view.columns):
         if i:
             out.append(r"\medskip")
@@ -280,7 +302,8 @@ def _figure_latex(view: FigureView) -> str:
                                                     for r in view.rows) + r" \\")
         out += [r"\bottomrule", r"\end{tabular}"]
     out.append(r"\end{table}")
-    out += ["% " + _claim_line(cl) for cl in view.claims] + ["% " + x for x in view.footer]
+    out += [_tex_comment(_claim_line(cl)) for cl in view.claims]
+    out += [_tex_comment(x) for x in view.footer]
     return "\n".join(out) + "\n"
 
 

@@ -264,8 +264,9 @@ def write_strips(rs, out_dir: str | Path, *, formats=("png", "exr"), **kw) -> di
     from repro.render.exr import write_exr
     from repro.render.strips import render_strip, save_png
 
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    from repro.store.atomic import output_dir
+
+    out_dir = output_dir(out_dir)  # a file, a device, '' or /proc/x: one error line
     strips, notes = table_strips(rs, **kw)
     sk = None
     record = {"schema": 1, "table": rs.spec.id, "run": rs.run_id, "notes": notes, "strips": []}
@@ -283,10 +284,9 @@ def write_strips(rs, out_dir: str | Path, *, formats=("png", "exr"), **kw) -> di
             files["exr"] = f"{st.name}.exr"
         record["strips"].append({"name": st.name, "title": st.title, "frames": st.frames,
                                  "files": files, **st.meta})
-    from repro.store.atomic import atomic_write_bytes
+    from repro.store.atomic import write_output
 
-    atomic_write_bytes(out_dir / "strips.json",
-                       (json.dumps(record, indent=1, sort_keys=True) + "\n").encode())
+    write_output(out_dir / "strips.json", json.dumps(record, indent=1, sort_keys=True) + "\n")
     return record
 
 

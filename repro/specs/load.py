@@ -40,14 +40,20 @@ class SpecValidationError(SpecError):
         super().__init__(first.problem + more, file, first.location)
 
 
-def read_toml(path: Path) -> dict[str, Any]:
-    """Parse a TOML file; a syntax error becomes a :class:`SpecError` naming file and line."""
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise SpecError("file not found", path) from None
-    except OSError as e:
-        raise SpecError(f"cannot read: {e.strerror}", path) from None
+#: Largest TOML file read (table specs, ``tables/scales.toml``, data-set specs), in bytes: the
+#: largest shipped one, ``tables/scales.toml``, is 20 KB.  Read through
+#: :func:`repro.data.sources.read_regular` (issue 29: ``repro spec check /dev/zero`` read
+#: without end, and a FIFO blocked): a regular file only, at most cap + 1 bytes.
+MAX_TOML_BYTES = 1024 ** 2
+
+
+def read_toml(path: Path, cap: int | None = None, what: str = "the TOML file") -> dict[str, Any]:
+    """Parse a TOML file of at most ``cap`` bytes (default :data:`MAX_TOML_BYTES`); a file
+    that is not a regular file, is over the cap or has a syntax error becomes a
+    :class:`SpecError` naming the file (and line)."""
+    from repro.data.sources import read_regular
+
+    data = read_regular(Path(path), MAX_TOML_BYTES if cap is None else cap, what, SpecError)
     try:
         parsed = tomllib.loads(data.decode("utf-8"))
     except UnicodeDecodeError as e:

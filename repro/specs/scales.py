@@ -40,7 +40,7 @@ from repro.errors import ConfigError
 from repro.keys import canonical_json, content_key
 from repro.paths import tables_root
 from repro.specs import names
-from repro.specs.schema import DatasetName
+from repro.specs.schema import MAX_SPEC_VERSION, DatasetName, fps_problem
 
 SCALE_NAMES = ("quick", "medium", "paper")
 
@@ -102,6 +102,8 @@ class ScaleProfile(BaseModel):
             r = table.get("replicates")
             if r is not None and (not isinstance(r, int) or isinstance(r, bool) or r < 1):
                 raise ValueError(f"protocols.{p}.replicates must be an integer ≥ 1 (got {r!r})")
+            if "fps" in table and fps_problem(table["fps"]) is not None:
+                raise ValueError(f"protocols.{p}.{fps_problem(table['fps'])}")
         return v
 
     @field_validator("methods")
@@ -118,7 +120,8 @@ class ScaleFile(BaseModel):
     model_config = ConfigDict(extra="forbid", populate_by_name=True)
 
     schema_version: int = Field(1, alias="schema", ge=1, le=1)
-    version: int = Field(ge=1, description="bump when any profile changes; stamped into runs")
+    version: int = Field(ge=1, le=MAX_SPEC_VERSION, description="bump when any profile "
+                         "changes; stamped into runs")
     quick: ScaleProfile
     medium: ScaleProfile
     paper: ScaleProfile

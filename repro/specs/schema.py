@@ -51,6 +51,32 @@ Scalar = Union[StrictBool, StrictInt, StrictFloat, StrictStr]
 ParamValue = Union[Scalar, list[Scalar]]
 Params = dict[str, ParamValue]
 
+#: a spec's hand-bumped ``version``: an integer 1 .. 1,000,000 (issue 29: 10^23 was accepted)
+MAX_SPEC_VERSION = 1_000_000
+#: a protocol's ``fps`` (frames per second of the data it reads): in (0, 1000]
+MAX_PROTOCOL_FPS = 1000.0
+
+
+def fps_problem(value: object) -> str | None:
+    """Why ``value`` is not a protocol frame rate (a number in (0, :data:`MAX_PROTOCOL_FPS`]),
+    or None; shared with the scale profiles' protocol tables."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and \
+            0 < value <= MAX_PROTOCOL_FPS:
+        return None
+    return (f"fps must be a number of frames per second above 0 and at most "
+            f"{MAX_PROTOCOL_FPS:g} (got {value!r:.40})")
+
+
+def _bounded_params(v: dict) -> dict:
+    problem = fps_problem(v["fps"]) if "fps" in v else None
+    if problem is not None:
+        raise ValueError(problem)
+    return v
+
+
+#: ``protocol_params`` tables: :data:`Params` whose ``fps``, when set, is a sane frame rate
+ProtocolParams = Annotated[Params, AfterValidator(_bounded_params)]
+
 ROW_ID = r"^[a-z0-9][a-z0-9_\-]*$"
 COLUMN_ID = r"^[a-z0-9][a-z0-9_]*(\.[a-z0-9][a-z0-9_]*)?$"
 SPEC_ID = r"^[a-z0-9]+/[A-Za-z0-9_]+$"
@@ -126,7 +152,7 @@ class ColumnGroup(_Strict):
                                           "this band")
     paper_dataset: DatasetName | None = Field(None, description="overrides the table's paper "
                                               "data set")
-    protocol_params: Params = Field(default_factory=dict)
+    protocol_params: ProtocolParams = Field(default_factory=dict)
     note: str | None = None
 
 
@@ -358,7 +384,7 @@ class TableSpec(_Strict):
 
     schema_version: Literal[1] = Field(alias="schema", description="spec format version (1)")
     id: str = Field(pattern=SPEC_ID, description="'<paper>/<table>', e.g. 'marionette/table3'")
-    version: int = Field(ge=1)
+    version: int = Field(ge=1, le=MAX_SPEC_VERSION)
     kind: Literal["table", "figure"] = "table"
     paper: PaperRef
     title: str = Field(min_length=3)
@@ -371,7 +397,7 @@ class TableSpec(_Strict):
     columns: Annotated[list[Column], Field(min_length=1)]
     rows: Annotated[list[Row], Field(min_length=1)]
     claims: list[Claim] = Field(default_factory=list)
-    protocol_params: Params = Field(default_factory=dict, description="what the paper fixes for "
+    protocol_params: ProtocolParams = Field(default_factory=dict, description="what the paper fixes for "
                                     "this table (test set, windows, its sample counts); the scale "
                                     "profile's protocol table overrides keys it also sets")
     note: str | None = None

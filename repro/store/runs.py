@@ -402,16 +402,20 @@ class RunRecord:
 
 
 def read_run_json(path: Path) -> dict[str, Any]:
+    """``run.json`` of the run folder ``path``, its fields checked
+    (:func:`repro.store.run_checks.check_run_json`)."""
+    from repro.store.run_checks import check_run_json, read_regular
+
     f = Path(path) / RUN_JSON
     try:
-        data = json.loads(f.read_text(encoding="utf-8"))
+        data = json.loads(read_regular(f).decode("utf-8"))
     except FileNotFoundError:
         raise DataError("run record has no run.json", file=f) from None
     except (OSError, ValueError) as e:
         raise DataError(f"run.json is not valid JSON ({e})", file=f) from None
-    if not isinstance(data, dict) or data.get("schema") != RUN_SCHEMA or "status" not in data:
-        raise DataError(f"not a run record of schema {RUN_SCHEMA}", file=f)
-    return data
+    except RecursionError:
+        raise DataError("run.json is nested too deeply", file=f) from None
+    return check_run_json(data, f, RUN_SCHEMA)
 
 
 def read_trainings(path: Path) -> list[dict[str, Any]]:
@@ -420,40 +424,64 @@ def read_trainings(path: Path) -> list[dict[str, Any]]:
     f = Path(path) / TRAININGS_JSON
     if not f.is_file():
         return []
+    from repro.store.run_checks import read_regular
+
     try:
-        return list(json.loads(f.read_text(encoding="utf-8")).get("trainings") or [])
-    except (ValueError, AttributeError):
+        got = json.loads(read_regular(f).decode("utf-8")).get("trainings") or []
+    except (OSError, ValueError, AttributeError, RecursionError, DataError):
         return []
+    return [t for t in got if isinstance(t, dict)] if isinstance(got, list) else []
 
 
 def read_values(path: Path) -> list[dict[str, Any]]:
     f = Path(path) / VALUES_JSONL
     if not f.exists():
         return []
+    from repro.store.run_checks import VALUES_CAP, check_value_line, read_regular
+
     out = []
-    with open(f, encoding="utf-8") as fh:
-        for i, line in enumerate(fh, 1):
-            if not line.strip():
-                continue
-            try:
-                v = json.loads(line)
-            except ValueError as e:
-                raise DataError(f"not a JSON line ({e})", file=f, line=i) from None
-            if not isinstance(v, dict) or not {"row", "column", "replicate", "value"} <= set(v):
-                raise DataError("value line lacks row/column/replicate/value", file=f, line=i)
-            out.append(v)
+    try:
+        lines = read_regular(f, VALUES_CAP).decode("utf-8").splitlines()
+    except (OSError, ValueError) as e:
+        raise DataError(f"cannot read the values ({e})", file=f) from None
+    for i, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            v = json.loads(line)
+        except ValueError as e:
+            raise DataError(f"not a JSON line ({e})", file=f, line=i) from None
+        except RecursionError:
+            raise DataError("nested too deeply", file=f, line=i) from None
+        out.append(check_value_line(v, f, i))
     return out
 
 
+def read_summary(path: Path, required: bool = False) -> dict[str, Any] | None:
+    """``summary.json`` of the run folder ``path``, capped and its shape checked
+    (:func:`repro.store.run_checks.check_summary`); None when there is none, unless
+    ``required`` (a FINISHED run always has one), where its absence is a DataError."""
+    from repro.store.run_checks import check_summary, read_regular
+
+    sf = Path(path) / SUMMARY_JSON
+    try:
+        data = json.loads(read_regular(sf).decode("utf-8"))
+    except FileNotFoundError:
+        if required:
+            raise DataError("the run has no summary.json", file=sf) from None
+        return None
+    except (OSError, ValueError) as e:
+        raise DataError(f"summary.json is not valid JSON ({e})", file=sf) from None
+    except RecursionError:
+        raise DataError("summary.json is nested too deeply", file=sf) from None
+    return check_summary(data, sf)
+
+
 def load_run(path: str | Path) -> RunRecord:
+    """The whole record of the run folder ``path`` (``run.json``, the values, the summary),
+    every file checked: a damaged one is a DataError naming it."""
     path = Path(path)
-    summary = None
-    sf = path / SUMMARY_JSON
-    if sf.exists():
-        try:
-            summary = json.loads(sf.read_text(encoding="utf-8"))
-        except (OSError, ValueError) as e:
-            raise DataError(f"summary.json is not valid JSON ({e})", file=sf) from None
+    summary = read_summary(path)
     return RunRecord(path, read_run_json(path), read_values(path), summary)
 
 
@@ -469,6 +497,9 @@ def run_dirs(runs_dir: str | Path | None = None) -> list[Path]:
 
 def resolve_run(ref: str, runs_dir: str | Path | None = None) -> Path:
     """The folder of run ``ref``: a run id, a unique prefix of one, or ``latest``."""
+    if not str(ref).strip():
+        raise ConfigError("the run id is empty (give a run id, a unique prefix of one, or "
+                          "'latest'; `repro runs ls` lists them)")
     dirs = run_dirs(runs_dir)
     if ref in ("latest", "last"):
         if not dirs:
@@ -504,7 +535,8 @@ def reconcile_stale(path: str | Path) -> bool:
         return False
     now = utc_now()
     data["status"] = INTERRUPTED
-    data["status_history"].append({"status": INTERRUPTED, "at": now})
+    data["status_history"] = [*(data.get("status_history") or []),
+                              {"status": INTERRUPTED, "at": now}]
     data["ended"] = now
     data["note"] = f"process {env.get('pid')} ended without closing the run (killed?)"
     atomic_write_json(path / RUN_JSON, data)
