@@ -49,11 +49,14 @@ COMMAND_MODULES = (
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse's parser whose usage errors quote long values clipped, as repro's own errors
-    (:func:`_one_line`); its sub-command parsers are of the same class."""
+    """argparse's parser whose usage errors are one line (no usage block; the ``--help`` to ask
+    for it named) and quote long values clipped, as repro's own errors (:func:`_one_line`); its
+    sub-command parsers are of the same class."""
 
     def error(self, message: str):
-        super().error(_one_line(message))
+        # one line, like every other refusal (issue 29): no usage block above it
+        self.exit(2, f"{self.prog}: error: {_one_line(message)} (`{self.prog} --help` shows "
+                     "the usage)\n")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -246,7 +246,8 @@ def test_an_empty_run_id_says_so(capsys):
         with pytest.raises(SystemExit) as e:
             main([*cmd, "--run", ""])
         assert e.value.code == 2
-        assert "the run id is empty" in capsys.readouterr().err
+        err = capsys.readouterr().err  # argparse's refusal is one line too (no usage block)
+        assert "the run id is empty" in err and err.count("\n") == 1, err
 
 
 # ------------------------------------------------------------------------ md / LaTeX
