@@ -190,6 +190,23 @@ def test_an_index_with_bytes_that_are_not_utf8_is_rebuilt(capsys):
     assert sorted(ids) == sorted(r.run_id for r in runs)
 
 
+def test_an_index_row_whose_text_is_not_utf8_is_rebuilt(capsys):
+    """Found by the long fuzz run (issue 29): a byte edit inside a stored row's text (the last
+    byte of the file, in the ``digest`` column) makes sqlite3 raise an OperationalError "Could
+    not decode to UTF-8 column ..." while listing; it was taken for an unusable store (exit 2)
+    instead of damage (moved aside, rebuilt)."""
+    runs = [_run(i) for i in range(3)]
+    idx = RunIndex()
+    idx.list()
+    data = bytearray(idx.path.read_bytes())
+    digest = max(data.rfind(bytes(c, "ascii")) for c in "0123456789abcdef")
+    data[digest] = 0xD6  # the row's last digest character becomes a lone UTF-8 lead byte
+    idx.path.write_bytes(bytes(data))
+    ids, err = _ls(capsys)
+    assert sorted(ids) == sorted(r.run_id for r in runs)
+    assert list(idx.path.parent.glob("runs.sqlite.corrupt-*")), err
+
+
 def _damage(path, how: str) -> None:
     for f in path.iterdir():
         os.chmod(f, 0o644)

@@ -102,7 +102,7 @@ def _locked(e: Exception) -> bool:
 #: SQLite's result codes for a damaged file (the low byte of an extended code)
 _CORRUPT_CODES = (getattr(sqlite3, "SQLITE_CORRUPT", 11), getattr(sqlite3, "SQLITE_NOTADB", 26))
 _CORRUPT_TEXT = ("file is not a database", "database disk image is malformed", "no such table",
-                 "no such column")
+                 "no such column", "could not decode to utf-8")
 
 
 def _is_damage(e: Exception) -> bool:
@@ -115,7 +115,8 @@ def _is_damage(e: Exception) -> bool:
     code = getattr(e, "sqlite_errorcode", None)
     if code is not None and (code & 0xFF) in _CORRUPT_CODES:
         return True
-    return any(t in str(e) for t in _CORRUPT_TEXT)
+    text = str(e).lower()  # sqlite3's "Could not decode to UTF-8 column ..." (an OperationalError)
+    return any(t in text for t in _CORRUPT_TEXT)
 
 
 def _one_line(text: object) -> str:
