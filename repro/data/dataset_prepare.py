@@ -14,7 +14,6 @@ names, sizes and contents), so editing either makes a new cache; nothing old is 
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 import numpy as np
@@ -22,8 +21,8 @@ import numpy as np
 from repro.data.dataset_labels import clip_stem, labels_for
 from repro.data.dataset_spec import (FPS_RTOL, MAX_LABELS_BYTES, POSITION_TOL_M,
                                      PREPARE_VERSION, DatasetSpec, SkeletonSpec,
-                                     clip_pattern, key_material, load_dataset_spec,
-                                     naming_material, role_of, spec_key)
+                                     clip_pattern, escape_name, key_material,
+                                     load_dataset_spec, naming_material, role_of, spec_key)
 from repro.data.prepare_caps import FrameBudget, check_finite, joints_f32
 from repro.data.prepare_caps import resample_clip as resample_long
 from repro.errors import DataError, MissingDataError
@@ -52,9 +51,6 @@ def _iter_files(source: Path, spec: DatasetSpec, skipped: "SkippedFiles | None" 
 
 #: how many of the files no pattern took the card names (all are counted)
 SKIPPED_SHOWN = 10
-#: the characters :func:`repro.data.dataset_spec.bad_char` refuses, escaped on the card
-_UNSAFE = re.compile("[\x00-\x1f\x7f-\x9f\ud800-\udfff\u2028\u2029\u202a-\u202e"
-                     "\u2066-\u2069]")
 
 
 class SkippedFiles:
@@ -81,7 +77,7 @@ class SkippedFiles:
     def shown(self) -> list[str]:
         """The names the card lists, control characters and bytes that are not UTF-8 escaped
         (``\\x1b``, ``\\udcff``): one compiled pattern over those few names only."""
-        return [_UNSAFE.sub(lambda m: ascii(m.group())[1:-1], n) for n in self._first]
+        return [escape_name(n) for n in self._first]
 
 
 def _read_asf(source: Path, spec: DatasetSpec):

@@ -90,17 +90,24 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True)
 
 
+#: the characters a name may not hold (:func:`bad_char`)
+NAME_UNSAFE = re.compile("[\x00-\x1f\x7f-\x9f\ud800-\udfff\u2028\u2029\u202a-\u202e"
+                         "\u2066-\u2069]")
+
+
 def bad_char(text: str) -> str | None:
     """The first character of ``text`` that a name may not hold, or None: C0 controls (ESC,
     BEL, NUL ...), DEL, C1 controls (U+0080-U+009F: U+009B is a terminal's CSI, U+0085 a line
     break), lone surrogates (not text: printing one fails), line/paragraph separators and the
     bidirectional overrides (issue 29: such names reached the terminal raw)."""
-    for ch in text:
-        o = ord(ch)
-        if (o < 32 or 0x7F <= o <= 0x9F or 0xD800 <= o <= 0xDFFF or o in (0x2028, 0x2029)
-                or 0x202A <= o <= 0x202E or 0x2066 <= o <= 0x2069):
-            return ch
-    return None
+    m = NAME_UNSAFE.search(text)
+    return m.group() if m else None
+
+
+def escape_name(text: str) -> str:
+    """``text`` with every character :func:`bad_char` refuses written as its Python escape
+    (``\\x1b``, ``\\udcff``): for names shown on the card or in a warning."""
+    return NAME_UNSAFE.sub(lambda m: ascii(m.group())[1:-1], text)
 
 
 def _no_controls(v, what: str):
@@ -433,8 +440,7 @@ def _warn_once(message: str) -> None:
 
     if message not in _WARNED:
         _WARNED.add(message)
-        shown = "".join(c if bad_char(c) is None else ascii(c)[1:-1] for c in message)
-        print(f"repro: warning: skipped: {shown}", file=sys.stderr)
+        print(f"repro: warning: skipped: {escape_name(message)}", file=sys.stderr)
 
 
 def skipped_reason(name: str) -> str:
