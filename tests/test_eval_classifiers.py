@@ -350,3 +350,29 @@ def test_interrupted_training_resumes_exactly(two_class):
     assert resumed.weights_sha256 == straight.weights_sha256
     assert resumed.fingerprint == straight.fingerprint
     provider._LOADED.clear()
+
+
+def test_min_window_trains_on_short_windows_and_only_when_asked(two_class, monkeypatch):
+    """Issue 26: with ``min_window`` the recogniser's training windows keep valid lengths drawn
+    in [min_window, window] (as short as the composed actions it scores); without it the
+    training draw is the one it always was (other evaluators keep their weights)."""
+    import repro.eval.training as training
+    from repro.eval.training import train_evaluator
+
+    seen = []
+    real = training.to_model_input
+
+    def spy(joints, lengths=None, **kw):
+        seen.append(np.asarray(lengths).copy())
+        return real(joints, lengths, **kw)
+
+    monkeypatch.setattr(training, "to_model_input", spy)
+    s = tiny_settings(train={"epochs": 2, "windows_per_epoch": 256})
+    train_evaluator(two_class, "a2m_gru", s, seed=0)
+    plain = np.concatenate(seen)
+    seen.clear()
+    short = train_evaluator(two_class, "a2m_gru", s.model_copy(update={"min_window": 8}), seed=0)
+    lens = np.concatenate(seen)
+    assert plain.max() == 24 and (plain == 24).mean() > 0.5
+    assert lens.min() >= 8 and lens.max() <= 24 and (lens < 20).mean() > 0.3
+    assert short.fingerprint != train_evaluator(two_class, "a2m_gru", s, seed=0).fingerprint

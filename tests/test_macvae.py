@@ -123,7 +123,9 @@ def test_paper_defaults_and_widths(pairs):
     assert (cfg.d_model, cfg.layers, cfg.heads, cfg.ff_size, cfg.dropout, cfg.activation) == \
         (512, 8, 4, 2048, 0.1, "gelu")
     assert (cfg.optimizer, cfg.lr, cfg.weight_decay, cfg.batch_size, cfg.epochs) == \
-        ("adamw", 5e-5, 0.01, 16, 1300)
+        ("adamw", 5e-5, 0.01, 16, 1200)   # released envs/train.yaml (paper: 1,300)
+    assert (cfg.posterior_pooling, cfg.decoder_causal, cfg.transition_pos_enc,
+            cfg.temporal_kernel, cfg.acc_loss) == ("per_part", True, True, 5, "squared_output")
     assert (cfg.lambda_acc, cfg.lambda_kl, cfg.prevnet_frames, cfg.separate_latent) == \
         (1.0, 1e-5, 4, True)
     assert (cfg.prevnet_action_label, cfg.canonicalization, cfg.backbone, cfg.postprocessor,
@@ -132,13 +134,25 @@ def test_paper_defaults_and_widths(pairs):
     P, C = 6 * pairs.skeleton.n_joints + 3, 3
     assert len(net.encoder.net.layers) == 8 and len(net.decoder.net.layers) == 8
     assert net.encoder.net.layers[0].ff.lin1.out_features == 2048
-    assert net.pose_embed.out_features == 256 and net.action_embed.weight.shape == (C + 1, 256)
+    # the released code's structure (defaults): pre_coding = Linear(P + d -> d) of [p, E_d(a)];
+    # per-frame conv -> BN -> ReLU -> FC heads shared by z_p and z_c; one conv d -> P at the end
+    assert (cfg.encoder_embedding, cfg.posterior_head, cfg.decoder_head, cfg.pos_encoding) == \
+        ("joint", "per_frame", "conv", "transposed")
+    assert net.pose_embed.in_features == P + 512 and net.pose_embed.out_features == 512
+    assert net.action_embed.weight.shape == (C + 1, 512)
     assert net.prior_mu.weight.shape == (C + 1, 512) and net.prior_logvar.weight.shape == (C + 1, 512)
     assert net.prev_mu.in_features == 4 * P and net.prev_mu.out_features == 512
     assert net.prev_logvar.in_features == 4 * P
-    assert len(net.post_mu) == 2 and len(net.post_logvar) == 2
+    assert len(net.post_mu) == 1 and len(net.post_logvar) == 1 and net.enc_bn.num_features == 512
     assert net.postprocessor.kernel_size == (5,) and net.postprocessor.in_channels == P
-    assert net.final.out_features == P
+    assert net.final is None and net.dec_conv.conv.out_channels == P
+    assert net.dec_conv.conv.kernel_size == (5,) and net.dec_conv.causal
+    # the paper's structure (the switches)
+    paper = MACVAE({"encoder_embedding": "split", "posterior_head": "pooled",
+                    "decoder_head": "conv_linear"}, pairs.skeleton, 3, 20.0).network
+    assert paper.pose_embed.out_features == 256 and paper.action_embed.weight.shape == (C + 1, 256)
+    assert len(paper.post_mu) == 2 and len(paper.post_logvar) == 2
+    assert paper.final.out_features == P and paper.dec_conv.conv.out_channels == 512
 
 
 @pytest.mark.parametrize("scale", ["quick", "medium", "paper"])
@@ -149,7 +163,10 @@ def test_scale_profiles_are_valid_configs(scale):
     assert over
     cfg = MACVAEConfig.resolve(over)
     if scale == "paper":
-        assert cfg == MACVAEConfig()
+        # every architecture and reading field at its default; the epochs are the paper's
+        # 1,300 in tables/scales.toml or the released code's 1,200 (the default)
+        assert cfg.epochs in (1200, 1300)
+        assert cfg.model_copy(update={"epochs": MACVAEConfig().epochs}) == MACVAEConfig()
 
 
 def test_registry_bad_configs_and_key(pairs):
@@ -304,7 +321,13 @@ def test_separate_latent_switch(test_pairs):
     with torch.no_grad():
         a = net.decode([z], l_t, l_c)
         b = net.decode([z], torch.tensor([0, 0]), l_t + l_c)
-    assert torch.allclose(a, b, atol=1e-6)       # only the total length matters
+    # the code's transition-length encoding still tells the decoder where T ends ...
+    assert not torch.allclose(a, b, atol=1e-6)
+    plain = model(test_pairs, separate_latent=False, transition_pos_enc=False).network
+    with torch.no_grad():
+        a = plain.decode([z], l_t, l_c)
+        b = plain.decode([z], torch.tensor([0, 0]), l_t + l_c)
+    assert torch.allclose(a, b, atol=1e-6)       # ... without it only the total length matters
     out = one.sample(test_pairs, seed=0)
     assert torch.isfinite(out.motion.root).all()
 
@@ -484,3 +507,222 @@ def test_sample_does_not_read_transition_or_action(trained, test_pairs):
     assert not same(base, m.sample(with_prev_frame(test_pairs, 1), seed=6))
     relabel = dataclasses.replace(test_pairs, labels=(test_pairs.labels + 1) % 3)
     assert not same(base, m.sample(relabel, seed=6))
+
+
+# -- paper <-> released-code readings (docs/multiact.md, "Paper and released code") -------------
+
+
+def _eval_net(pairs, **over):
+    net = model(pairs, **over).network
+    net.eval()
+    return net
+
+
+def test_causal_decoder_masks_the_future(pairs):
+    """decoder_causal (code: subsequent_mask on the self-attention + a front-padded conv):
+    a change of the decoder's query at frame 6 leaves every earlier output frame unchanged; the
+    paper's unmasked decoder spreads it backwards.  (Cross-attention reads every memory frame
+    in both: the code masks only padding there.)"""
+    torch.manual_seed(0)
+    zp, zc = (torch.randn(2, TINY["d_model"]) for _ in range(2))
+    l_t, l_c = torch.tensor([4, 6]), torch.tensor([5, 4])
+
+    def bump(mod, args):
+        x = args[0].clone()
+        x[:, 6] += 1.0
+        return (x,) + tuple(args[1:])
+
+    for causal in (True, False):
+        net = _eval_net(pairs, decoder_causal=causal)
+        with torch.no_grad():
+            a = net.decode([zp, zc], l_t, l_c)
+            h = net.decoder.net.register_forward_pre_hook(bump)
+            b = net.decode([zp, zc], l_t, l_c)
+            h.remove()
+        assert torch.allclose(a[:, :6], b[:, :6], atol=1e-6) == causal
+        assert not torch.allclose(a[:, 6], b[:, 6], atol=1e-6)
+
+
+def test_temporal_kernel_and_causal_conv():
+    from repro.models.macvae_nets import TemporalConv
+
+    torch.manual_seed(0)
+    for k in (5, 3):
+        assert TemporalConv(8, k).conv.kernel_size == (k,)
+    x = torch.randn(1, 12, 8)
+    valid = torch.ones(1, 12, dtype=torch.bool)
+    y = x.clone()
+    y[:, 7] += 1.0
+    causal, centred = TemporalConv(8, 5, causal=True), TemporalConv(8, 5)
+    with torch.no_grad():
+        dc = (causal(x, valid) - causal(y, valid)).abs().sum(-1)[0]
+        dm = (centred(x, valid) - centred(y, valid)).abs().sum(-1)[0]
+    assert torch.all(dc[:7] == 0) and torch.all(dc[7:12] > 0)          # reads t-4 .. t
+    assert torch.all(dm[:5] == 0) and torch.all(dm[5:10] > 0) and torch.all(dm[10:] == 0)
+    # padding never read: an item's output does not depend on frames past its length
+    short = torch.tensor([[True] * 9 + [False] * 3])
+    with torch.no_grad():
+        z = x.clone()
+        z[:, 9:] = 100.0
+        assert torch.equal(centred(x, short), centred(z, short))
+    net = MACVAE(TINY, pairs_skeleton(), 3, 20.0).network
+    assert net.enc_conv.conv.kernel_size == (5,) and net.dec_conv.causal
+    net3 = MACVAE({**TINY, "temporal_kernel": 3, "decoder_causal": False}, pairs_skeleton(), 3,
+                  20.0).network
+    assert net3.enc_conv.conv.kernel_size == (3,) and not net3.dec_conv.causal
+    for causal in (True, False):
+        with pytest.raises(ValueError, match="temporal_kernel must be odd"):
+            MACVAEConfig(**{**TINY, "temporal_kernel": 4, "decoder_causal": causal})
+
+
+def pairs_skeleton():
+    return synthetic_pairs(2).skeleton
+
+
+def test_posterior_pooling_uses_the_right_frames(pairs):
+    """per_part (code): z_p's posterior pools the T frames only, z_c's the S_c frames only;
+    global (paper): both pool every valid frame."""
+    net = _eval_net(pairs)
+    l_p, l_t, l_c = torch.tensor([5, 6]), torch.tensor([3, 2]), torch.tensor([4, 7])
+    wp, wc = net.pooling_weights(l_p, l_t, l_c, 20)
+    for i in range(2):
+        a, b, c = int(l_p[i]), int(l_p[i] + l_t[i]), int(l_p[i] + l_t[i] + l_c[i])
+        assert torch.allclose(wp[i, a:b], torch.full((b - a,), 1.0 / (b - a)))
+        assert wp[i, :a].sum() == 0 and wp[i, b:].sum() == 0
+        assert torch.allclose(wc[i, b:c], torch.full((c - b,), 1.0 / (c - b)))
+        assert wc[i, :b].sum() == 0 and wc[i, c:].sum() == 0
+    (wo,) = _eval_net(pairs, separate_latent=False).pooling_weights(l_p, l_t, l_c, 20)
+    assert wo[0, :5].sum() == 0 and torch.allclose(wo[0].sum(), torch.tensor(1.0))
+    g1, g2 = _eval_net(pairs, posterior_pooling="global").pooling_weights(l_p, l_t, l_c, 20)
+    assert torch.equal(g1, g2) and torch.all(g1[0, :12] > 0) and g1[0, 12:].sum() == 0
+    # end to end with a per-frame backbone and kernel 1: a change in S_c moves z_c, not z_p
+    for pooling in ("per_part", "global"):
+        n = _eval_net(pairs, backbone="mlp", temporal_kernel=1, posterior_pooling=pooling)
+        L, P = 16, n.pose_dim
+        seq = torch.randn(2, L, P)
+        seg = torch.zeros(2, L, dtype=torch.long)
+        seq2 = seq.clone()
+        seq2[:, 10] += 1.0                       # an S_c frame of both items (l_p + l_t <= 8)
+        with torch.no_grad():
+            (mp, _), (mc, _) = n.encode(seq, seg, l_p, l_t, l_c)
+            (mp2, _), (mc2, _) = n.encode(seq2, seg, l_p, l_t, l_c)
+        assert not torch.allclose(mc, mc2)
+        assert torch.allclose(mp, mp2) == (pooling == "per_part")
+
+
+def test_acc_loss_squared_output_and_l1_target(pairs):
+    """acc_loss: squared_output (code AccelLoss: the generated joints' squared second
+    differences, no target) and l1_target (L1 against the target's)."""
+    torch.manual_seed(0)
+    sq = model(pairs)
+    l1 = model(pairs, acc_loss="l1_target")
+    B, T, J = 2, 9, 3
+    pj = torch.randn(B, T, J, 3)
+    tgt = torch.randn(B, T, J, 3)
+    joints = torch.randn(B, 12, J, 3)
+    l_p, n = torch.tensor([4, 5]), torch.tensor([9, 6])
+    a = sq.acc_term(pj, tgt, joints, l_p, n)
+    assert torch.equal(a, sq.acc_term(pj, torch.zeros_like(tgt), joints, l_p, n))  # no target
+    assert torch.allclose(sq.acc_term(2 * pj, tgt, 2 * joints, l_p, n), 4 * a)     # squared
+    # by hand: triples over [S_p's last two frames, generated frames], valid ones only
+    vals = []
+    for i in range(B):
+        x = torch.cat([joints[i, int(l_p[i]) - 2:int(l_p[i])], pj[i, :int(n[i])]])
+        vals.append(((x[2:] - 2 * x[1:-1] + x[:-2]) ** 2).reshape(-1))
+    assert torch.allclose(a, torch.cat(vals).mean())
+    b = l1.acc_term(pj, tgt, joints, l_p, n)
+    assert torch.allclose(l1.acc_term(2 * pj, 2 * tgt, joints, l_p, n), 2 * b)      # L1
+    assert float(l1.acc_term(tgt, tgt, joints, l_p, n)) == 0.0
+
+
+def test_transposed_positional_encoding_is_the_codes_table():
+    """pos_encoding = "transposed": the released PositionalEncoding(max_input_len = 120) adds
+    pe[:, :d] of a (120, 5000) table whose rows are the sinusoid's *channels*: frame t gets
+    the sinusoid over the channel index with the frequency of "dimension" t."""
+    from repro.models.macvae_nets import decoder_positions, positional_encoding
+
+    d, L = 16, 120
+    pos = torch.arange(d, dtype=torch.float32)[:, None]            # the code's "position"
+    div = torch.exp(torch.arange(0, L, 2).float() * (-math.log(10000.0) / L))
+    table = torch.zeros(d, L)
+    table[:, 0::2] = torch.sin(pos * div)
+    table[:, 1::2] = torch.cos(pos * div)
+    table = table.T                                                 # (L, d): [frame, channel]
+    t = torch.arange(40)
+    assert torch.allclose(positional_encoding(t, d, "transposed"), table[:40], atol=1e-5)
+    assert not torch.allclose(positional_encoding(t, d, "standard"), table[:40], atol=1e-3)
+    # the transition-length encoding: last d/2 channels restart at S_c's first frame
+    l_t = torch.tensor([3, 7])
+    pe = decoder_positions(12, d, l_t, kind="transposed")
+    for i in range(2):
+        k = int(l_t[i])
+        assert torch.allclose(pe[i, :, :d // 2], table[:12, :d // 2], atol=1e-5)
+        assert torch.allclose(pe[i, :k, d // 2:], table[:k, d // 2:], atol=1e-5)
+        assert torch.allclose(pe[i, k:, d // 2:], table[:12 - k, d // 2:], atol=1e-5)
+
+
+def test_per_frame_posterior_head_ignores_padding(pairs):
+    """posterior_head = "per_frame" (code): conv -> BN -> ReLU -> FC per frame, then the
+    pooling; what lies past an item's length (its padding) changes nothing."""
+    net = model(pairs).network
+    net.train()
+    L, P = 20, net.pose_dim
+    torch.manual_seed(0)
+    seq = torch.randn(3, L, P)
+    seg = torch.zeros(3, L, dtype=torch.long)
+    l_p, l_t, l_c = torch.tensor([5, 6, 5]), torch.tensor([3, 2, 4]), torch.tensor([4, 7, 6])
+    junk = seq.clone()
+    for i, n in enumerate((l_p + l_t + l_c).tolist()):
+        junk[i, n:] = 50.0
+    with torch.no_grad():                 # training mode: BN batch statistics, same dropout
+        torch.manual_seed(1)
+        a = net.encode(seq, seg, l_p, l_t, l_c)
+        torch.manual_seed(1)
+        b = net.encode(junk, seg, l_p, l_t, l_c)
+    for (m1, v1), (m2, v2) in zip(a, b):
+        assert torch.allclose(m1, m2, atol=1e-5) and torch.allclose(v1, v2, atol=1e-5)
+
+
+def test_loss_frames_whole_scores_the_postprocessed_prev(pairs):
+    """loss_frames = "whole" (code): the postprocessor runs over [S_p, T̃, S̃_c] and the losses
+    read S_p's postprocessed frames too; its [T̂, Ŝ_c] part is exactly postprocess()'s."""
+    torch.manual_seed(0)
+    net = model(pairs).network
+    B, L, P = 3, 24, net.pose_dim
+    seq = torch.randn(B, L, P)
+    l_p, n = torch.tensor([5, 8, 1]), torch.tensor([9, 4, 12])
+    raw = torch.randn(B, int(n.max()), P)
+    with torch.no_grad():
+        whole = net.postprocess_whole(seq, l_p, raw, n)
+        part = net.postprocess(seq, l_p, raw, n)
+    for i in range(B):
+        a, k = int(l_p[i]), int(n[i])
+        assert torch.allclose(whole[i, a:a + k], part[i, :k], atol=1e-5)
+        assert torch.all(whole[i, a + k:] == 0)
+    # the two readings score different frames: the training losses differ on one batch
+    m_whole = model(pairs)
+    m_gen = model(pairs, loss_frames="generated")
+    m_gen.network.load_state_dict(m_whole.network.state_dict())
+    data = m_whole._tensors(pairs)
+    batch = MACVAE._crop(data, torch.arange(4))
+    torch.manual_seed(3)
+    lw = m_whole.training_step(m_whole.network, batch, 0)
+    torch.manual_seed(3)
+    lg = m_gen.training_step(m_gen.network, batch, 0)
+    assert torch.isfinite(lw["loss"]) and not torch.allclose(lw["rec_p"], lg["rec_p"])
+
+
+def test_per_frame_batchnorm_is_batchnorm_over_valid_frames(pairs):
+    import copy
+
+    net = model(pairs).network
+    net.train()
+    torch.manual_seed(0)
+    h = torch.randn(2, 7, TINY["d_model"])
+    valid = torch.tensor([[True] * 7, [True] * 4 + [False] * 3])
+    ref_bn = copy.deepcopy(net.enc_bn).train()
+    out = net._bn_relu(h, valid)
+    ref = torch.relu(ref_bn(h[valid]))
+    assert torch.allclose(out[valid], ref, atol=1e-5) and torch.all(out[~valid] == 0)
+    assert torch.allclose(net.enc_bn.running_mean, ref_bn.running_mean, atol=1e-6)
+    assert torch.allclose(net.enc_bn.running_var, ref_bn.running_var, atol=1e-5)

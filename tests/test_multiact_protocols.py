@@ -22,12 +22,8 @@ from repro.eval.protocols.long_term import (
     draw_label_sequences,
     prune_walk_graph,
 )
-from repro.eval.protocols.multiact_common import (
-    MultiActSamples,
-    anchor_frames,
-    blind,
-    load_samples,
-)
+from repro.eval.protocols.multiact_common import MultiActSamples, load_samples
+from repro.eval.protocols.multiact_conditions import anchor_frames, blind
 from repro.eval.protocols.multiact_conditioned import MultiActConditioned
 from repro.eval.protocols.transition import Transition
 from repro.models.items import ActionItems, GeneratedItems
@@ -496,6 +492,30 @@ def test_label_walks_use_test_pairs_only():
         draw_label_sequences([(0, 1)], 2, 2, 3, seed=0)
 
 
+def test_walk_successors_test_pairs_or_training_counts(clips, source):
+    """successors: the test pairs' own (a_p, a_c) (default, the paper's rule) or every pair
+    the training sequences join, read through SequenceSet.tag_pair_counts(TRAIN)."""
+    proto = _proto(LongTerm, source, steps=4, sequences=8)
+    assert proto.walk_pairs(clips) == source.label_pairs(clips, TEST)
+    counts = np.zeros((4, 4), np.int64)
+    counts[0, 1], counts[1, 2], counts[2, 0], counts[3, 3] = 9, 1, 2, 1
+    seen = []
+
+    class WithSequences(FakePairSource):
+        def sequences(self, clipset):
+            def tag_pair_counts(split=TRAIN):
+                seen.append(split)
+                return counts
+            return SimpleNamespace(tag_pair_counts=tag_pair_counts)
+
+    src = WithSequences(clips)
+    tr = _proto(LongTerm, src, steps=4, sequences=8, successors="train_counts")
+    assert tr.walk_pairs(clips) == [(0, 1), (1, 2), (2, 0), (3, 3)] and seen == [TRAIN]
+    walks = draw_label_sequences(tr.walk_pairs(clips), 4, 10, 5, seed=0)
+    ok = {(0, 1), (1, 2), (2, 0), (3, 3)}
+    assert all((int(a), int(b)) in ok for w in walks for a, b in itertools.pairwise(w))
+
+
 def test_long_term_keys_and_rows(clips, source, evaluator):
     proto = _proto(LongTerm, source, steps=4, sequences=8)
     items = proto.test_items(clips)
@@ -555,3 +575,77 @@ def test_blind_keeps_allowed_fields(clips, source):
     m = gather_frames(items.motion, items.l_p - 1, torch.ones_like(items.l_p))
     a, _ = b.action()
     assert torch.allclose(a.root, m.root.expand_as(a.root))
+
+
+# ---------------------------------------------------------------------------------------------
+# placement of a generated S_p (issue 26, "S_p placed in the world")
+
+
+def _placed_in_world(items: PairItems, seed: int) -> PairItems:
+    """``items`` rigidly moved per item by a seeded yaw (uniform) and ground offset (±5 m), as
+    the composer places each sequence in its world."""
+    from repro.motion.canon import CanonParams, canonicalize_with
+    from repro.motion.heading import yaw_matrix
+
+    N = len(items)
+    rng = numpy_rng(seed, "test-world-placement")
+    yaw = torch.as_tensor(rng.uniform(-np.pi, np.pi, N))
+    off = torch.as_tensor(np.stack([rng.uniform(-5, 5, N), np.zeros(N), rng.uniform(-5, 5, N)], 1))
+    G = yaw_matrix(yaw).to(items.motion.dtype)
+    params = CanonParams("test", G, -(G.transpose(-1, -2) @ off[..., None].to(G.dtype))[..., 0],
+                         torch.zeros(N, dtype=torch.long))
+    return dataclasses.replace(items, motion=canonicalize_with(items.motion, params))
+
+
+def test_generated_prev_starts_where_the_real_prev_starts(clips, source):
+    """A generated S_p (ACTOR's, for a_p) is placed at the real S_p's first frame, so its end
+    lies near the real S_p's start and faces every way when the pairs do; ACTOR's own frame
+    (origin, +Z: where "w. o. align" leaves Ŝ_c) is not where it ends."""
+    from repro.eval.protocols.multiact_conditions import at_origin, first_frames, place_at
+    from repro.motion.heading import motion_heading
+
+    proto = _proto(Transition, source, per_label=4)
+    items = _placed_in_world(proto.test_items(clips), 3)
+    start = first_frames(items.motion)
+    h_start = motion_heading(start, axis="forward")[:, 0]
+    assert np.median(np.degrees(np.abs(h_start.numpy()))) > 30      # the pairs face every way
+    origin_pose = at_origin(anchor_frames(items.motion, items.l_p).select([0]))
+    for gen, models in ((FakeComposite(origin_pose), None),
+                        (FakeMACVAE(), {"actor": FakeACTOR()})):
+        rows = None if models is None else {"prev_motion_source": "actor"}
+        out = proto.generate(gen, items, seed=0, replicate=0, models=models, row_config=rows)
+        end = out.anchor                                 # the generated S_p's last frame
+        travel = 0.03 * items.l_p.to(end.root.dtype) + 0.2
+        gap = (end.root[:, 0, [0, 2]] - start.root[:, 0, [0, 2]]).norm(dim=-1)
+        assert torch.all(gap <= travel)                  # it starts where the real S_p starts
+        h_end = motion_heading(end, axis="forward")[:, 0]
+        assert np.median(np.degrees(np.abs(h_end.numpy()))) > 30    # and faces every way
+        d = torch.remainder(h_end - h_start + np.pi, 2 * np.pi) - np.pi
+        assert float(d.std()) < 1e-3                     # with one fixed offset: the placement
+    # place_at is the inverse of ACTOR's normalisation: the origin pose lands on the frame
+    placed = place_at(origin_pose.select(torch.zeros(len(items), dtype=torch.long)), start)
+    assert torch.allclose(placed.root, start.root, atol=1e-5)
+
+
+@pytest.mark.parametrize("successors", ["test_pairs", "train_counts"])
+def test_long_term_walks_keep_their_class_mix_on_the_mini_view(successors, tmp_path_factory):
+    """Issue 26: on the composed bandai2-mini, the label walks of Fig. 6 do not drift into a
+    few classes with the step (the previous composer's walks held no locomotion from step 12)."""
+    from repro.data.registry import load_clipset
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("REPRO_HOME", str(tmp_path_factory.mktemp("lt-home")))
+        mini = load_clipset("bandai2-mini")
+    proto = LongTerm({"successors": successors})
+    C = mini.n_classes
+    walks = draw_label_sequences(proto.walk_pairs(mini), C, 500, 20, seed=0)
+    share = np.stack([np.bincount(walks[:, x], minlength=C) / 500 for x in range(20)])
+    if successors == "train_counts":    # the dense training matrix: near-uniform at every step
+        assert share[1:].min() >= 0.3 / C and share[1:].max() <= 3 / C
+    else:
+        # the paper's rule walks the test pairs (sparse on the mini view, so not uniform), but
+        # the mix does not drift with the step: every class at every step, and each class's
+        # share over steps 11-20 within half of its share over steps 2-10, either way
+        assert share[1:].min() > 0
+        early, late = share[1:10].mean(0), share[10:].mean(0)
+        assert (late >= 0.5 * early).all() and (late <= 1.5 * early).all()

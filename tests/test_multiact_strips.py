@@ -17,7 +17,8 @@ from repro.data.pairs import PairItems, gather_frames
 from repro.engine.run_samples import RowSamples
 from repro.errors import ConfigError, DataError
 from repro.eval.protocols.long_term import LongTermItems
-from repro.eval.protocols.multiact_common import MultiActSamples, anchor_frames
+from repro.eval.protocols.multiact_common import MultiActSamples
+from repro.eval.protocols.multiact_conditions import anchor_frames
 from repro.motion.motion import Motion
 from repro.motion.rotations import matrix_to_6d
 from repro.motion.skeleton import Skeleton

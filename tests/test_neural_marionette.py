@@ -64,10 +64,11 @@ def spy_generate(g):
 
 def test_config_fields_and_validation(clips):
     assert INFERENCE_FIELDS == {"shadow_start", "action_revision", "ss_l2_normalize",
-                                "ss_neighbours", "ss_norm"}
+                                "ss_neighbours", "ss_norm", "revision_classifier"}
     cfg = NeuralMarionetteConfig()
     assert (cfg.shadow_start, cfg.action_revision, cfg.ss_l2_normalize, cfg.ss_norm) == \
         ("on_revision", True, True, "unit")
+    assert cfg.revision_classifier is None             # the ss_ar protocol's choice
     assert cfg.ss_neighbours == 16 and cfg.d_model == MarioNetConfig().d_model
     assert generator_class("neural_marionette") is NeuralMarionette
     assert NeuralMarionette.trains_as == "marionet"
@@ -86,6 +87,8 @@ def test_config_fields_and_validation(clips):
            ({"action_revision": False}, "shadow_start"),                # on_revision needs AR
            ({"ss_neighbours": 0}, "ss_neighbours"),
            ({"ss_norm": "l1"}, "ss_norm"),
+           ({"revision_classifier": "oracle"}, "revision_classifier"),
+           ({**ALWAYS, "revision_classifier": "evaluator"}, "revision_classifier"),
            ({"shadow_start": "sometimes"}, "shadow_start"),
            ({"ss_neighbourz": 3}, "ss_neighbourz")]
     for over, field in bad:
@@ -137,19 +140,23 @@ def _np_embed(g, poses: torch.Tensor) -> np.ndarray:
     return np.maximum(y, 0.0)
 
 
-def _np_shadow(g, bank_items, cond, k, l2=None):
+def _np_shadow(g, bank_items, cond, k, l2=None, radii=None):
     f0 = _np_embed(g, pack_poses(cond.initial)[:, -1])
     bank = _np_embed(g, pack_poses(bank_items.initial)[:, -1])
     bl = bank_items.labels.numpy()
     out = []
+    radii = [] if radii is None else radii
     for i in range(len(cond)):
         cand = bank[bl == int(cond.labels[i])]
         near = np.argsort(((cand - f0[i]) ** 2).sum(-1), kind="stable")[:k]
         F = cand[near]
+        radii.append(np.linalg.norm(F, axis=1).mean())
         phi = np.linalg.lstsq(F.T, f0[i], rcond=None)[0]
         p = phi @ F
         if l2 == "unit":
             p = p / np.linalg.norm(p)
+        elif l2 == "neighbours":  # the embedding-norm reading: radius = mean ||f~^i|| of F~
+            p = p / np.linalg.norm(p) * np.linalg.norm(F, axis=1).mean()
         elif l2 == "match":
             p = p / np.linalg.norm(p) * np.linalg.norm(f0[i])
         out.append(p)
@@ -173,13 +180,23 @@ def test_shadow_start_is_the_projection_onto_nearest_same_tag_bops(marionet, ite
             assert np.allclose(g.bop_embeddings(c).numpy(), f0, atol=1e-5)
             assert not np.allclose(f.numpy(), f0, atol=1e-3)      # a real projection
             assert not np.allclose(f.norm(dim=1).numpy(), 1.0)     # no L2 step
-            # the L2 step: unit norm ("unit", the literal reading) or ||f0|| ("match")
-            for norm in ("unit", "match"):
+            # the L2 step: unit norm ("unit", the literal reading), the mean norm of the
+            # retrieved training embeddings ("neighbours", the embedding-norm reading) or
+            # ||f0|| ("match"); the direction is the projection's under every reading
+            radii: list = []
+            _np_shadow(g, bank, c, k, radii=radii)
+            direction = ref / np.linalg.norm(ref, axis=1, keepdims=True)
+            for norm in ("unit", "neighbours", "match"):
                 gn = nm(marionet, bank, **ALWAYS, ss_neighbours=k, ss_norm=norm)
                 fn = gn.shadow_start_features(c)
                 assert np.allclose(fn.numpy(), _np_shadow(gn, bank, c, k, norm)[1], atol=1e-5)
-                want = np.ones(len(c)) if norm == "unit" else np.linalg.norm(f0, axis=1)
-                assert np.allclose(fn.norm(dim=1).numpy(), want, atol=1e-5)
+                want = {"unit": np.ones(len(c)), "neighbours": np.asarray(radii),
+                        "match": np.linalg.norm(f0, axis=1)}[norm]
+                assert np.allclose(fn.norm(dim=1).numpy(), want, rtol=1e-5, atol=1e-5)
+                assert np.allclose(fn.numpy() / want[:, None], direction, atol=1e-4)
+            # the embedding norm is not the unit sphere, nor ||f0||, here
+            assert not np.allclose(radii, 1.0, atol=1e-2)
+            assert not np.allclose(radii, np.linalg.norm(f0, axis=1), atol=1e-3)
 
 
 def test_shadow_start_leaves_a_bop_in_the_span_unchanged(marionet, items):

@@ -60,7 +60,9 @@ def test_filters_and_parts(setup, split):
     assert int(p.l_t.min()) >= src.min_part and int(p.l_c.min()) >= src.min_part
     assert int(p.l_p.max()) <= src.max_prev_frames
     assert int(p.l_c.max()) <= src.max_curr_frames + src.extra_curr_frames
-    assert int(p.l_t.max()) <= 2 * src.trans_ext_cap + 3   # 3 source blend frames -> 2 at 20 fps
+    seqs = src.sequences(setup["clips"])               # T = the composed transition + extensions
+    blend = int(np.ceil(int(np.max(seqs.trans_length, initial=0)) * p.fps / seqs.fps))
+    assert int(p.l_t.max()) <= 2 * src.trans_ext_cap + blend + 1
     total = p.total
     assert int(total.max()) < src.max_len - 1 and int(total.min()) > src.min_len
     assert p.motion.n_frames == int(total.max())
@@ -70,14 +72,16 @@ def test_filters_and_parts(setup, split):
 
 def test_filters_and_cap_bite(setup):
     clips = setup["clips"]
-    tight = PairSource(min_len=100, all_cap_per_label=3)
+    base = PairSource().pair_table(clips, TRAIN)
+    thr = int(np.median(base["l_p"] + base["l_t"] + base["l_c"]))   # whatever the composer
+    tight = PairSource(min_len=thr, all_cap_per_label=3)
     tab = tight.pair_table(clips, TRAIN)
     assert tab["dropped"]["min_len"] > 0
     total = tab["l_p"] + tab["l_t"] + tab["l_c"]
-    assert (total > 100).all()
+    assert (total > thr).all()
     p = tight.pairs(clips, TRAIN)
     assert np.bincount(p.labels.numpy()).max() == 3
-    assert (p.total > 100).all()
+    assert (p.total > thr).all()
     # a short S_p crop below s1_end_len + 1 is filtered out
     short = PairSource(max_prev_frames=4)
     with pytest.raises(DataError, match="no valid MultiAct pair"):

@@ -165,6 +165,38 @@ def test_measure_columns_and_round_trip(setup, tmp_path):
     assert "nn_train_joint" not in plain and plain["fid"] == vals["fid"]
 
 
+def test_test_set_record_is_what_the_drawn_test_set_holds(setup):
+    """``test_sets`` of a table's JSON (issue 26): test_set_stats of the drawn chains' tags
+    against the training counts, keyed by the set; deterministic; no generator involved."""
+    from repro.data.tag_chains import test_set_stats
+
+    items, ev, clips = setup["test"], setup["ev"], setup["clips"]
+    C = items.n_classes
+    for which in ("overall", "sufficient"):
+        proto = get_protocol("multi_action", {**setup["proto"].params.model_dump(),
+                                              "test_set": which})
+        rec = proto.test_set_record(clips, ev)
+        assert list(rec) == [which]
+        r = rec[which]
+        ts = proto.test_set(clips, items, ev)
+        counts = proto.transition_counts(clips)
+        tags = items.labels.numpy()[ts.actions]
+        assert r == {**test_set_stats(tags, counts, C), "candidates": int(ts.candidates.size),
+                     "classes": list(items.label_names), "test_set_key": ts.key()}
+        share = np.asarray(r["class_share_by_position"])
+        assert share.shape == (L, C) and np.allclose(share.sum(1), 1.0, atol=1e-3)
+        assert (r["chains"], r["length"]) == (S, L)
+        support = counts[tags[:, :-1], tags[:, 1:]]
+        assert r["unseen_share"] == pytest.approx(float((support == 0).mean()), abs=1e-4)
+        assert r["median_support"] == float(np.median(support))
+        assert proto.test_set_record(clips, ev) == rec             # deterministic
+    # ss_ar scores Table 3's overall set, so it records the same chains
+    ss = get_protocol("ss_ar", {**setup["proto"].params.model_dump(), "test_set": "overall"})
+    mo = get_protocol("multi_action", {**setup["proto"].params.model_dump(),
+                                       "test_set": "overall"})
+    assert ss.test_set_record(clips, ev) == mo.test_set_record(clips, ev)
+
+
 def test_ss_ar_runs_neural_marionette_with_the_evaluator_as_f_c(setup):
     from repro.models.marionet import MarioNet
 
@@ -177,7 +209,7 @@ def test_ss_ar_runs_neural_marionette_with_the_evaluator_as_f_c(setup):
         return ev
 
     proto = get_protocol("ss_ar", params)
-    assert proto.params.revision_classifier == "independent"
+    assert proto.params.revision_classifier == "evaluator"   # §5.2.6: the scoring network
     sk = items.skeleton
     tiny = {"d_model": 32, "traj_dim": 8, "cond_heads": 2, "cond_ff": 32, "cond_layers": 1,
             "unroll_heads": 2, "unroll_ff": 32, "unroll_layers": 1, "dec_heads": 2,
@@ -185,12 +217,28 @@ def test_ss_ar_runs_neural_marionette_with_the_evaluator_as_f_c(setup):
     mn = MarioNet(tiny, sk, items.n_classes, items.fps)
     mn.fit(setup["train"].subset(range(40)), seed=0)
     nm_cls = generator_class("neural_marionette")
-    nm = nm_cls.from_marionet(mn, {"shadow_start": "on_revision", "action_revision": True})
+    nm = nm_cls.from_marionet(mn, {"shadow_start": "on_revision", "action_revision": True,
+                                   "revision_classifier": "independent"})
     with pytest.raises(ConfigError, match="factory"):
         proto.generate(nm, items, seed=0, replicate=0, evaluator=ev, clipset=clips)
     out = proto.generate(nm, items, seed=0, replicate=0, evaluator=ev, clipset=clips,
                          evaluator_factory=factory)
     assert asked == [("a2m_gru", 1)]  # another architecture, another seed
+    # the row's reading wins over the protocol's; unset, the protocol's (here the evaluator)
+    assert proto.fc_reading(nm) == "independent"
+    unset = nm_cls.from_marionet(mn, {"shadow_start": "on_revision", "action_revision": True})
+    assert proto.fc_reading(unset) == "evaluator" and proto.fc_request("evaluator") is None
+    ind = get_protocol("ss_ar", {**params, "revision_classifier": "independent"})
+    assert ind.fc_reading(unset) == "independent"
+    own = nm_cls.from_marionet(mn, {"shadow_start": "on_revision", "action_revision": True,
+                                    "revision_classifier": "evaluator"})
+    assert ind.fc_reading(own) == "evaluator"
+    assert ind.revision_classifier(ev, factory, ind.fc_reading(own)) is ev
+    assert asked == [("a2m_gru", 1)]  # the scoring network is not asked of the factory
+    # with F_c = the scoring network, an action is revised exactly when the scorer rejected
+    # its plain pass (§5.2.6: it fails only when both passes fail)
+    by_ev = proto.generate(unset, items, seed=0, replicate=0, evaluator=ev, clipset=clips)
+    assert asked == [("a2m_gru", 1)]
     assert out.revised is not None and out.revised.dtype == torch.bool
     # an action is revised exactly when the evaluator rejected its plain pass: with an
     # untrained model most are rejected
@@ -202,6 +250,16 @@ def test_ss_ar_runs_neural_marionette_with_the_evaluator_as_f_c(setup):
     # bitwise the plain pipeline's
     keep = ~out.revised[0::L]
     assert torch.equal(out.motion.root[0::L][keep], base.motion.root[0::L][keep])
+    # F_c = the scorer: action 1 is revised exactly where the scorer rejects the plain pass
+    from repro.eval.protocols.multi_action import MultiAction
+    from repro.models.items import GeneratedItems
+    from repro.seeding import derive_seed
+
+    first = torch.arange(S) * L
+    plain1 = GeneratedItems(base.motion.select(first), base.lengths[first], base.labels[first])
+    _, logits = proto._encode(ev, plain1, derive_seed(0, MultiAction.id, "revision"))
+    rejected = torch.from_numpy(np.asarray(logits).argmax(1) != plain1.labels.numpy())
+    assert torch.equal(by_ev.revised[0::L], rejected)
     # the plain MARIONET row under ss_ar is the pure pipeline
     again = proto.generate(mn, items, seed=0, replicate=0, evaluator=ev, clipset=clips)
     assert torch.equal(again.motion.root, base.motion.root)
@@ -233,3 +291,42 @@ def test_marionette_tables_share_one_training_per_model(scale):
     users = next(iter(keys.values()))
     assert {"table1/marionet", "table3/marionet", "table5/neural_marionette",
             "fig10/marionet_ss"} <= users
+def test_test_sets_reach_the_table_json(setup, monkeypatch):
+    """Issue 26: a multi-action table's JSON (``repro show --format json``) has ``test_sets``:
+    per set the drawn chains' unseen share, median support and class share by position (the
+    run records them in its summary, :func:`repro.engine.table_facts.test_sets_stored`,
+    outside the job graph)."""
+    import json
+
+    from repro.engine import table_facts
+    from repro.engine.tables import build_plan, make_view
+    from repro.report import render
+    from repro.specs.load import find_spec
+    from repro.specs.scales import resolve_scale
+
+    # the band's evaluator is the fixture's tiny one (no quick-scale recogniser is trained)
+    monkeypatch.setattr("repro.engine.steps.evaluator_for",
+                        lambda cfg, weights=True: setup["ev"])
+    C = setup["test"].n_classes
+    for table, sets in (("marionette/table3", {"overall", "sufficient"}),
+                        ("marionette/fig8", {"overall", "sufficient"}),
+                        ("marionette/table5", {"overall"}), ("marionette/fig10", {"overall"})):
+        spec = find_spec(table)
+        plan = build_plan(spec, resolve_scale("quick"), dataset="bandai2-mini")
+        got = table_facts.test_sets_stored(plan)
+        assert set(got) == sets, table
+        n = plan.bands[0].params["actions_per_sequence"]
+        for name, r in got.items():
+            assert 0.0 <= r["unseen_share"] <= 1.0 and r["median_support"] >= 0
+            share = np.asarray(r["class_share_by_position"])
+            assert share.shape == (n, C) and np.allclose(share.sum(1), 1.0, atol=1e-3)
+            assert r["classes"] == list(setup["test"].label_names)
+        assert table_facts.test_sets_stored(plan) == got            # stored, the same
+        view = make_view(spec, {}, {"cells": {}, "test_sets": got}, [], "bandai2-mini")
+        assert json.loads(render(view, "json"))["test_sets"] == got
+    # a table that draws no test chains has none
+    t1 = build_plan(find_spec("marionette/table1"), resolve_scale("quick"),
+                    dataset="bandai2-mini")
+    assert table_facts.test_sets_stored(t1) == {}
+    assert json.loads(render(make_view(t1.spec, {}, {"cells": {}}, [], "bandai2-mini"),
+                             "json"))["test_sets"] is None

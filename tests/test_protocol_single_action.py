@@ -191,7 +191,7 @@ def test_mismatched_samples_are_refused(setup):
 
 
 def test_evaluation_clips_centre_start_and_whole():
-    from repro.eval.protocols.single_action import evaluation_clips
+    from repro.eval.protocols.marionette_common import evaluation_clips
 
     j = np.arange(2 * 10, dtype=np.float64).reshape(2, 10, 1, 1).repeat(3, axis=-1)
     lens = np.array([10, 3])

@@ -333,6 +333,24 @@ def test_quick_records_before_the_kernel_pin_are_their_values(path):
     _cells_are_their_values(path, summary, 3)
 
 
+BEFORE_26 = _records("quick-before-26") + _records("multiact-quick-before-26")
+
+
+@pytest.mark.parametrize("path", BEFORE_26, ids=[p.parent.name + "/" + p.name for p in BEFORE_26])
+def test_quick_records_before_issue_26_are_their_values(path):
+    """The quick records CI compared with until issue 26 (composer version 1: chains falling into
+    the arm classes, truncated actions, blended junctions; docs/results.md, "Earlier records"):
+    kept as history, each consistent with its own raw values."""
+    rj, summary = _run(path)
+    assert rj["status"] == "FINISHED" and rj["scale"] == "quick"
+    assert rj["env"]["kernels"]["mode"] == "pinned"
+    _cells_are_their_values(path, summary, 3)
+
+
+def test_before_26_history_covers_the_marionette_and_multiact_specs():
+    assert {_run(p)[0]["table"] for p in BEFORE_26} == MARIONETTE | MULTIACT
+
+
 def test_current_quick_records_were_made_under_the_pin():
     for path in QUICK + MA_RUNS["quick"] + OD_RUNS["quick"]:
         rj, _ = _run(path)

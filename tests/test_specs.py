@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -52,6 +53,14 @@ def _edit(path: Path, old: str, new: str, count: int = 1) -> None:
     text = path.read_text(encoding="utf-8")
     assert old in text, f"{old!r} not in {path}"
     path.write_text(text.replace(old, new, count), encoding="utf-8")
+
+
+def _edit_re(path: Path, pattern: str, repl: str) -> None:
+    """Replace the first match of the regular expression ``pattern`` (which must match)."""
+    text = path.read_text(encoding="utf-8")
+    new, n = re.subn(pattern, repl, text, count=1)
+    assert n == 1, f"{pattern!r} not in {path}"
+    path.write_text(new, encoding="utf-8")
 
 
 def _problems(path: Path) -> list[str]:
@@ -185,7 +194,7 @@ def test_unknown_metric_dataset_protocol_interval(tables_copy):
 def test_unknown_key_is_an_error_with_suggestion(tables_copy):
     p = tables_copy / "multiact" / "table3.toml"
     _edit(p, 'label = "ACTOR + Interpolation"\nmethod', 'lable = "ACTOR + Interpolation"\nmethod')
-    _edit(p, "\nversion = 1\n", "\nversion = 1\nverison = 2\n")
+    _edit_re(p, r"\nversion = (\d+)\n", r"\nversion = \1\nverison = 2\n")
     text = "\n".join(_problems(p))
     assert "rows[4] (id 'interpolation'): unknown field 'lable' (did you mean 'label'?)" in text
     assert "unknown field 'verison' (did you mean 'version'?)" in text
@@ -311,7 +320,7 @@ def test_scales_resolve_and_paper_values():
             mn["ss_accomplish_epoch"]) == (30, 1e-4, 1000, 250, 750)
     mv = p.method_config("macvae")
     assert (mv["d_model"], mv["layers"], mv["heads"], mv["lr"], mv["batch_size"], mv["epochs"],
-            mv["lambda_acc"], mv["lambda_kl"]) == (512, 8, 4, 5e-5, 16, 1300, 1.0, 1e-5)
+            mv["lambda_acc"], mv["lambda_kl"]) == (512, 8, 4, 5e-5, 16, 1200, 1.0, 1e-5)
     od = p.method_config("odmo")
     assert (od["latent_dim"], od["lr"], od["margin"], od["sigma2"], od["tf_start"],
             od["tf_end"], od["tf_decay_epochs"], od["batch_size"], od["windows_per_epoch"],

@@ -90,7 +90,7 @@ def _prepare_bandai(name: str, source, workers: int, force: bool):
 
 def _prepare(args: argparse.Namespace) -> int:
     from repro.data.registry import get_entry
-    from repro.data.sequences import SEQUENCE_VIEWS
+    from repro.data.sequence_views import SEQUENCE_VIEWS
     from repro.errors import ConfigError
 
     if args.name in SEQUENCE_VIEWS:
@@ -190,7 +190,7 @@ def _check_spec(args: argparse.Namespace) -> int:
 
 
 def _prepare_view(args: argparse.Namespace) -> int:
-    from repro.data.sequences import SEQUENCE_VIEWS, prepare_view
+    from repro.data.sequence_views import SEQUENCE_VIEWS, prepare_view
     from repro.errors import ConfigError
 
     if args.source:
@@ -208,7 +208,7 @@ def _prepare_view(args: argparse.Namespace) -> int:
 
 def _info(args: argparse.Namespace) -> int:
     from repro.data.registry import DATASETS, clipset_summary, get_entry
-    from repro.data.sequences import SEQUENCE_VIEWS, view_card, view_status
+    from repro.data.sequence_views import SEQUENCE_VIEWS, view_card, view_status
 
     if args.name in SEQUENCE_VIEWS and not args.list:
         card = view_card(args.name)
@@ -301,6 +301,7 @@ def _print_seq_card(c: dict, matrix: bool = True) -> None:
     ts = c["tag_pairs"]["train_summary"]
     con.print(f"train tag pairs: {ts['pairs']} pairs, {ts['zero_pairs']}/{ts['cells']} cells zero, "
               f"top 10% of cells hold {100 * (ts['top10pct_pairs_mass'] or 0):.1f}% of pairs")
+    _print_fidelity(con, c.get("fidelity"))
     con.print(f"fingerprint: {c['fingerprint']}")
     con.print(f"[dim]{c['stand_in']}[/dim]")
     if not matrix:
@@ -316,6 +317,32 @@ def _print_seq_card(c: dict, matrix: bool = True) -> None:
     for i, row in enumerate(c["tag_pairs"]["train"]):
         t.add_row(f"{i} {names[i]}", *[str(v) if v else "." for v in row])
     con.print(t)
+
+
+def _print_fidelity(con, f: dict | None) -> None:
+    """The card's ``fidelity`` object in a few lines (issue 26; docs/data.md)."""
+    if not f:
+        return
+    import statistics
+
+    succ, top4 = f["successors_per_tag"], [x for x in f["top4_share"] if x is not None]
+    con.print(f"fidelity: successors per tag {min(succ)}-{max(succ)}, median top-4 share "
+              f"{statistics.median(top4) if top4 else float('nan'):.3f}")
+    for name, ts in (f.get("test_sets") or {}).items():
+        con.print(f"  {name} chains: unseen transitions {100 * ts['unseen_share']:.1f}%, median "
+                  f"training support {ts['median_support']:g}")
+    trunc = ", ".join(f"{k} {100 * v['share']:.1f}% > {v['max_frames']}"
+                      for k, v in f["truncated_actions"].items() if v["share"] is not None)
+    con.print(f"  truncated training actions: {trunc}")
+    j = f["junction"]
+    if j["above_p99_share"] is not None:
+        con.print(f"  junction windows above the inside p99: {100 * j['above_p99_share']:.1f}%; "
+                  f"foot slide (median, cm/frame) junction {j['foot_slide_junction']} vs inside "
+                  f"{j['foot_slide_inside']}")
+    p = f.get("pairs")
+    if p:
+        con.print(f"  MultiAct pairs: S_p heading median {p['sp_heading_deg_median']:.1f} deg, "
+                  f"transition linear ratio {p['transition_linear_ratio']:.3f}")
 
 
 def _bundle(args: argparse.Namespace) -> int:

@@ -6,9 +6,10 @@ the duration, the next tag and the trajectory (Neural Marionette §3, Fig. 2; §
 takes the previous motion and the next tag from the recording the action sits in.  The
 stand-in's clips are single actions, so the context comes from the **composed sequences**
 (:mod:`repro.data.sequences`, the ``bandai2-seq`` view): an item is one ``ROLE_ACTION``
-segment; ``P^ini`` is the ``n_init`` frames before it in its sequence (the previous segment's
-end and the blended transition, from other recordings); the next tag is the label of the
-segment after it.  Neither ever comes from the clip being generated (``tests/test_contexts.py``).
+segment; ``P^ini`` is the ``n_init`` frames before it in its sequence (the transition: the
+previous clip's own recorded continuation carried onto this segment's first frame, and before
+it the previous segment's end); the next tag is the label of the segment after it.  Neither
+ever comes from the clip being generated (``tests/test_contexts.py``).
 
 :class:`ItemSource` is the one description of how items are made (split, composition, item
 construction, context), shared by the ``single_action``, ``multi_action`` and ``ss_ar``
@@ -22,7 +23,8 @@ action being generated.
 
 Each item is expressed in the world frame of its source clip (the context is mapped by the
 inverse of the segment's placement in the sequence), so an item's real action is exactly the
-recorded clip (from its cut on) and evaluators that see absolute heading are unaffected.
+recorded clip's segment (``max_action_frames`` ≤ every profile's ``max_frames``: whole, never
+truncated) and evaluators that see absolute heading are unaffected.
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ from repro.errors import DataError
 from repro.keys import content_key
 
 #: Bumped when sequence items are built differently (enters :meth:`ItemSource.describe`).
-CONTEXT_VERSION = 1
+CONTEXT_VERSION = 2
 
 
 class ItemSource(BaseModel):
@@ -57,14 +59,15 @@ class ItemSource(BaseModel):
     compose: dict = Field(default_factory=dict)   # repro.data.sequences.ComposeConfig overrides
 
     @model_validator(mode="after")
-    def _context_holds_real_frames(self):
+    def _compose_is_valid(self):
+        # Since COMPOSE_VERSION 2 a transition is the previous clip's own recorded continuation
+        # (carried smoothly onto the next segment's first frame), never a synthetic ramp, so
+        # P^ini holds the previous recording's motion whatever blend_frames is (issue 26; the
+        # card's junction numbers say how close to recorded motion it stays).
         if self.context == "sequence":
             from repro.data.sequences import ComposeConfig
 
-            blend = ComposeConfig.resolve(self.compose).blend_frames
-            if self.n_init < blend + 2:
-                raise ValueError(f"n_init {self.n_init} < blend_frames {blend} + 2: the previous "
-                                 "motion would hold (almost) only blended transition frames")
+            ComposeConfig.resolve(self.compose)  # a bad override: one ConfigError line
         return self
 
     def describe(self) -> dict:
@@ -84,16 +87,9 @@ class ItemSource(BaseModel):
     @classmethod
     def make(cls, where: str, **fields) -> "ItemSource":
         """``ItemSource(**fields)``; a bad value is a ConfigError naming ``where`` and the field."""
-        from pydantic import ValidationError
+        from repro.config_errors import resolve_config
 
-        from repro.errors import ConfigError
-
-        try:
-            return cls(**fields)
-        except ValidationError as e:
-            err = e.errors()[0]
-            field = ".".join(str(p) for p in err.get("loc", ())) or "parameters"
-            raise ConfigError(f"{where}: {field}: {err['msg']}") from None
+        return resolve_config(cls, fields, f"{where}:", unnamed="parameters", quote=False)
 
     @classmethod
     def from_description(cls, d: dict) -> "ItemSource":
@@ -142,7 +138,7 @@ class ItemSource(BaseModel):
                 return build_items(self.split_clipset(clipset), split, self.items_config())
             return sequence_items(self.sequences(clipset), split, self.items_config())
 
-        return _cached(key, build)
+        return cached(key, build)
 
     def train_items(self, clipset):
         from repro.data.clipset import TRAIN
@@ -155,7 +151,9 @@ _CACHE: "OrderedDict[str, object]" = OrderedDict()
 _CACHE_SIZE = 8
 
 
-def _cached(key: str, build):
+def cached(key: str, build):
+    """``build()`` through a small in-process LRU (8 entries) keyed by the content key ``key``:
+    the items and test sets the Neural Marionette protocols build from one composition."""
     hit = _CACHE.get(key)
     if hit is not None:
         _CACHE.move_to_end(key)

@@ -12,7 +12,11 @@ re-exported here):
 - :class:`PairItems`: N samples packed in one :class:`~repro.motion.motion.Motion` of
   ``max(l_p + l_t + l_c)`` frames in the **world frame of their sequence**; frames
   ``0 .. l_p−1`` are ``S_p``, ``l_p .. l_p+l_t−1`` are ``T``, then ``l_c`` frames of ``S_c``;
-  past ``l_p + l_t + l_c`` each item repeats its last frame.  What a generator may be
+  past ``l_p + l_t + l_c`` each item repeats its last frame.  The world frame is kept, never
+  re-based: ``S_p`` has the position and heading it has in its sequence (the composer places
+  each sequence with a seeded world yaw and ground offset), while a label-only generator's
+  unplaced ``Ŝ_c`` lives at the origin facing +Z (``S_c``'s canonical frame; MultiAct Table 3's
+  "w. o. align"); :mod:`repro.data.pair_fidelity` measures the spread.  What a generator may be
   conditioned on is ``S_p``, ``a_c``, ``l_t`` and ``l_c`` (``a_p`` only for the baselines that
   regenerate ``S_p`` from its label); ``T`` and ``S_c`` are targets and references only.
 - :class:`GeneratedPairs`: what a MultiAct-style generator returns for N conditions:

@@ -72,7 +72,7 @@ from repro.errors import DataError
 from repro.keys import content_key
 from repro.seeding import numpy_rng
 
-__all__ = ["PairSource", "resample_clipset"]
+__all__ = ["PairSource", "resample_clipset", "resampled_sequences"]
 
 _SPLITS = {TRAIN: "train", TEST: "test"}
 
@@ -144,16 +144,9 @@ class PairSource(BaseModel):
     def make(cls, where: str, **fields) -> "PairSource":
         """``PairSource(**fields)``; a bad value is a ConfigError naming ``where`` and the
         field."""
-        from pydantic import ValidationError
+        from repro.config_errors import resolve_config
 
-        from repro.errors import ConfigError
-
-        try:
-            return cls(**fields)
-        except ValidationError as e:
-            err = e.errors()[0]
-            field = ".".join(str(p) for p in err.get("loc", ())) or "parameters"
-            raise ConfigError(f"{where}: {field}: {err['msg']}") from None
+        return resolve_config(cls, fields, f"{where}:", unnamed="parameters", quote=False)
 
     @classmethod
     def from_description(cls, d: dict) -> "PairSource":
@@ -174,9 +167,14 @@ class PairSource(BaseModel):
                        lambda: resample_clipset(clipset, self.fps))
 
     def sequences(self, clipset):
-        """The composed sequences of ``clipset`` at its native fps (in-process cached)."""
-        from repro.data.sequences import ComposeConfig, sequences_for
+        """The composed sequences of ``clipset`` at its native fps (in-process cached).  A
+        :class:`~repro.data.sequences.SequenceSet` given instead of a clip set is used as it is
+        (its own composition; ``compose`` is not applied): every method below then cuts its
+        pairs from those sequences (:func:`repro.data.pair_fidelity.pair_fidelity` does)."""
+        from repro.data.sequences import ComposeConfig, SequenceSet, sequences_for
 
+        if isinstance(clipset, SequenceSet):
+            return clipset
         return sequences_for(clipset, ComposeConfig(**self.compose))
 
     def pair_table(self, clipset, split: int) -> dict:
@@ -186,7 +184,8 @@ class PairSource(BaseModel):
         ``prev_clip``, ``clip``; ``dropped``: {filter: count} of candidates removed."""
         split = _check_split(split)
         key = content_key({"what": "table", "source": self.describe(),
-                           "data": clipset.fingerprint, "split": split})
+                           "data": clipset.fingerprint, "kind": type(clipset).__name__,
+                           "split": split})
         tab = _cached(key, lambda: self._table(clipset, split))
         return {**tab, "dropped": dict(tab["dropped"])}   # arrays are read-only
 
@@ -402,6 +401,13 @@ def _resampled(seqs, fps: float) -> dict:
 
     return _cached(content_key({"what": "resampled", "sequences": seqs.fingerprint,
                                 "fps": float(fps), "version": PAIRS_VERSION}), build)
+
+
+def resampled_sequences(seqs, fps: float) -> dict:
+    """Every sequence of ``seqs`` resampled once to ``fps``, as the pairs are cut from them
+    (module docstring, step 2): ``root`` (F, 3) and ``rot6d`` (F, J, 6) float32 tensors packed
+    by sequence, ``starts`` and ``lengths`` (S,) int64 (in-process cached; read only)."""
+    return _resampled(seqs, fps)
 
 
 def resample_clipset(clips, fps: float):

@@ -194,7 +194,7 @@ def _upstream_entries() -> list[DatasetEntry]:
 def builtin_names() -> set[str]:
     """Names a user's data-set spec may not take: the stand-ins, their sequence views and the
     papers' data sets."""
-    from repro.data.sequences import SEQUENCE_VIEWS
+    from repro.data.sequence_views import SEQUENCE_VIEWS
     from repro.specs.names import DATASETS as KNOWN
 
     return ({e.name for e in _builtin_entries() + _upstream_entries()} | set(SEQUENCE_VIEWS)

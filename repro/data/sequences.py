@@ -4,55 +4,33 @@ Why.  Neural Marionette trains and tests on BABEL-MAG (Sec. 3): every action com
 context, the ``k`` frames of motion before it (``{P}_{-k}^{-1}``), its own tag ``A^cur``, its
 duration ``T`` and the tag of the action that follows (``A^next``).  Its multi-action test
 chains actions "according to the transition matrix where the number of connections between
-different action categories in the training set is calculated in advance" (Sec. 5.2.1; the
-matrix is the heatmap of supp. Sec. 2.1, Fig. 1), and that matrix is sparse and skewed: "except
-for a few tag pairs (e.g. turn-walk), most of the tag pairs have only limited connected samples
-in the training data" (Sec. 4.3.2).  The stand-in data (``bandai2``) holds single actions only,
-so we compose sequences from its real clips like a motion graph (DESIGN.md, "Datasets").
-BABEL-MAG's sequences are real recordings; ours are compositions of real single-action clips
-joined by short blended transitions.  Every report says so.
+different action categories in the training set is calculated in advance" (Sec. 5.2.1; supp.
+Sec. 2.1, Fig. 1), a sparse, skewed matrix (Sec. 4.3.2).  The stand-in data (``bandai2``) holds
+single actions only, so we compose sequences from its real clips like a motion graph
+(DESIGN.md, "Datasets").  BABEL-MAG's sequences are real recordings; ours are compositions of
+real single-action clips joined where the recorded motions agree.  Every report says so.
 
-Rules (all thresholds and lengths are :class:`ComposeConfig` fields; units: frames at the
-ClipSet's fps, metres, radians):
+Rules (every threshold and length is a :class:`ComposeConfig` field; the algorithm and why it
+holds the statistics the papers assume are in :mod:`repro.data.compose_walk`):
 
 - **Split by source clip.**  Sequences of split ``s`` use only clips with ``clips.split == s``;
-  every clip of a split is exactly one ``ROLE_ACTION`` segment of that split's sequences.  A
-  sequence is ``[lead-in, action × n, lead-out]`` with ``n`` drawn uniformly in
-  ``[min_actions, max_actions]`` (fewer when the walk cannot continue; at least 1).  Lead-ins
-  and lead-outs are real clips of the same split reused (any clip other than their neighbour),
-  so every action has real frames before it and a real successor tag.  A lead-in keeps its last
-  ``lead_frames`` frames up to its exit cut, a lead-out its first ``lead_frames`` from its entry
-  cut.
-- **Join cost** of an exit frame ``i`` of clip A (one of its last ``cut_window`` frames) and an
-  entry frame ``j`` of clip B (one of its first ``cut_window`` frames): the Euclidean distance of
-  the root-relative, facing-normalised joint positions (joints minus root, rotated by the
-  inverse body heading, :func:`repro.motion.heading.body_heading`; the pose feature of
-  ``repro.models.items._pose_features``) plus ``velocity_weight`` × the distance of the
-  facing-normalised joint velocities (frame differences ``x[t] − x[t−1]``; the forward
-  difference at a clip's first frame).  The cheapest pair is the junction:
-  A ends at ``i``, B starts at ``j``; no cut leaves an action shorter than
-  ``min(min_action_frames, clip length)``.
-- **Tag preference** (the recorded, seeded stand-in of supp. Fig. 1): for each ordered tag pair
-  ``(a, b)``, the median over ``preference_samples`` seeded draws of (train clip of ``a``, train
-  clip of ``b``) of the best join cost.  Per source tag, the target tags (itself included) are
-  ranked by that cost (ties: a seeded order); the first ``n_frequent`` get ``frequent_weight``,
-  the next ``n_rare`` ``rare_weight``, the rest 0 (absent pair).  A tag that no row selects
-  gets ``rare_weight`` in the row that joins into it most cheaply, so every tag has a
-  predecessor for its lead-ins.
-- **Walk** (seeded :func:`repro.seeding.numpy_rng`): a sequence starts at a uniformly drawn
-  unused clip; its lead-in tag is drawn ∝ the preference column of that clip's tag.  The next
-  tag is drawn ∝ the preference row of the current tag restricted to tags with unused clips; if
-  that row is all zero, or the sequence has its ``n`` actions, a lead-out (tag ∝ the preference
-  row) closes the sequence.  Each clip chosen (actions, lead-ins, lead-outs) is the cheapest
-  join among up to ``candidates_per_step`` random candidates of the drawn tag.  Hence every consecutive tag pair
-  of a sequence has a non-zero preference (when every tag has at least two clips in the split).
-- **Alignment**: B is rotated about +Y and shifted on the ground plane (height untouched) so
-  that its entry heading equals A's exit heading and its entry root sits at A's exit root
-  advanced by ``(blend_frames + 1)`` × the mean of A's exit and B's (rotated) entry ground-plane
-  root velocity.  The sequence's world frame is its lead-in clip's own.
-- **Transition**: ``blend_frames`` frames strictly between A's exit pose and B's aligned entry
-  pose: slerp of every local joint rotation (shortest arc, roma) and linear interpolation of the
-  root.  Their ``frame_label`` is ``-1`` (BABEL's ``transition`` segments).
+  every usable clip of a split is exactly one ``ROLE_ACTION`` segment of that split's
+  sequences.  A sequence is ``[lead-in, action × n, lead-out]`` with ``n`` drawn uniformly in
+  ``[min_actions, max_actions]`` (fewer when the walk ends early; at least 1).  Lead-ins and
+  lead-outs are real clips of the same split reused (any clip other than their neighbour), so
+  every action has real frames before it and a real successor tag.
+- **Whole actions**: an action segment is ``min_action_frames … max_action_frames`` frames cut
+  anywhere in its clip (``max_action_frames`` ≤ every scale profile's ``max_frames``).
+- **Tags**: a doubly stochastic, long-tailed target matrix (each tag: ``n_frequent``
+  cheapest-joining other tags frequent, every other tag, itself included, rare), realised by
+  per-split quotas (training: every pair at least once).
+- **Junctions**: cheapest pose + velocity match anywhere inside the clips; the next segment is
+  rotated about +Y so its heading matches and shifted on the ground plane so the mean of the
+  anchor joints (the feet) matches; ``blend_frames`` transition frames are the previous clip's
+  own continuation carried smoothly onto the next segment's first frame (label ``-1``,
+  BABEL's ``transition`` segments).
+- **World placement**: each sequence starts at a seeded heading (uniform) and ground position
+  (uniform in ``±world_offset_m``), as recordings start anywhere (``world_placement``).
 
 Determinism: the same clips and config give identical arrays and the same
 :attr:`SequenceSet.fingerprint` (content key of ``COMPOSE_VERSION``, the source fingerprint,
@@ -63,20 +41,20 @@ from __future__ import annotations
 
 import collections
 import dataclasses
-import difflib
 import hashlib
-import io
 import json
 import math
-import re
 import threading
 from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, model_validator
 
 from repro.data.clipset import TEST, TRAIN, ClipSet
+from repro.data.compose_walk import (ROLE_ACTION, ROLE_LEAD_IN, ROLE_LEAD_OUT, ROLE_NAMES,
+                                     anchor_joints, features, quat_yaw_mul, rot_y, tag_matrix,
+                                     transition_frames, walk_split)
 from repro.errors import ConfigError, DataError
 from repro.keys import content_key
 from repro.seeding import numpy_rng
@@ -84,21 +62,20 @@ from repro.seeding import numpy_rng
 __all__ = [
     "ROLE_LEAD_IN", "ROLE_ACTION", "ROLE_LEAD_OUT", "ROLE_NAMES", "COMPOSE_VERSION",
     "CARD_SCHEMA", "ComposeConfig", "SequenceSet", "compose_sequences", "sequences_for",
-    "SEQUENCE_VIEWS", "load_view", "view_dir", "prepare_view", "view_card", "view_status",
+    "STAND_IN_NOTE", "foot_joints",
 ]
 
-ROLE_LEAD_IN, ROLE_ACTION, ROLE_LEAD_OUT = 0, 1, 2
-ROLE_NAMES = ("lead_in", "action", "lead_out")
-
-#: Bumped when composition changes; enters the fingerprint.
-COMPOSE_VERSION = 1
+#: Bumped when composition changes; enters the fingerprint.  2: issue 26 (long-tailed doubly
+#: stochastic tag matrix with quotas, junctions anywhere inside clips, whole actions, the
+#: previous clip's continuation as transition, sequences placed in the world).
+COMPOSE_VERSION = 2
 #: Version of ``card.json`` / ``sequences.npz`` written by ``repro data prepare <view>``.
-CARD_SCHEMA = 1
+#: 2: the card's ``fidelity`` object (issue 26).
+CARD_SCHEMA = 2
 
-STAND_IN_NOTE = ("stand-in: motion-graph compositions of real single-action clips joined by "
-                 "blended transitions; BABEL-MAG's multi-action sequences are real recordings")
-
-_FOOT_NAME = re.compile(r"(foot|toe|ankle)", re.IGNORECASE)
+STAND_IN_NOTE = ("stand-in: motion-graph compositions of real single-action clips joined where "
+                 "their recorded motions agree; BABEL-MAG's multi-action sequences are real "
+                 "recordings")
 
 
 class ComposeConfig(BaseModel):
@@ -109,64 +86,61 @@ class ComposeConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    seed: int = 0                     # seeds the preference samples, tie order and the walk
+    seed: int = 0                     # seeds the preference samples, ties, placement and walk
     min_actions: int = 3              # ROLE_ACTION segments per sequence, drawn uniformly in
     max_actions: int = 8              #   [min_actions, max_actions]
-    cut_window: int = 10              # frames at a clip's end (exit) / start (entry) for cuts
-    min_action_frames: int = 30       # no cut leaves an action shorter (or its clip, if shorter)
-    blend_frames: int = 3             # transition frames between two segments (0: a hard cut);
-                                      # 3 < the 6 frames of P^ini, so a context holds real frames
-                                      # of the previous action before the blend (docs/data.md)
+    min_action_frames: int = 30       # an action segment's length range (cut anywhere in its
+    max_action_frames: int = 60       #   clip); max <= every scale's max_frames: whole actions
+    blend_frames: int = 30            # transition frames: the previous clip's continuation
+                                      # carried onto the next segment (0: a hard cut); 30 at
+                                      # 30 fps = 1 s (the sweep in docs/data.md)
     velocity_weight: float = 3.0      # frames: converts the velocity distance (m/frame) to metres
+    foot_weight: float = 6.0          # weight of the foot joints in the junction cost
     candidates_per_step: int = 8      # random unused clips of the drawn tag compared per step
-    n_frequent: int = 2               # frequent successor tags per tag
-    n_rare: int = 3                   # rare successor tags per tag (after the frequent ones)
-    frequent_weight: float = 1.0      # preference weight of a frequent pair
-    rare_weight: float = 0.08         # preference weight of a rare pair (0: rare pairs absent)
+    n_frequent: int = 4               # frequent successors per tag (other tags; itself is rare)
+    frequent_weights: tuple[float, ...] = (0.4, 0.25, 0.2, 0.15)  # by rank
+    rare_share: float = 0.15          # transition mass shared by the rare successors
     preference_samples: int = 7       # seeded (clip a, clip b) draws per tag pair; median cost
     lead_frames: int = 60             # frames kept of a lead-in (ending at its cut) / lead-out
+    world_placement: Literal["random", "origin"] = "random"  # a sequence's start heading/place
+    world_offset_m: float = 2.0       # half-width of the start position's square (random)
     heading_axis: Literal["forward", "lateral"] = "forward"  # body axis of the heading
-    foot_joints: tuple[str, ...] | None = None  # junction quality; None: names with foot/toe/ankle
+    foot_joints: tuple[str, ...] | None = None  # anchors and junction quality; None: names
+                                                #   with foot/toe/ankle
     foot_contact_m: float = 0.05      # a foot is on the ground within this height (m) of its
                                       #   lowest height in its clip (junction quality only)
 
     @model_validator(mode="after")
     def _check(self) -> "ComposeConfig":
-        for k in ("min_actions", "cut_window", "min_action_frames", "candidates_per_step",
-                  "preference_samples", "lead_frames"):
+        for k in ("min_actions", "min_action_frames", "candidates_per_step",
+                  "preference_samples", "lead_frames", "n_frequent"):
             if getattr(self, k) < 1:
                 raise ValueError(f"{k} must be >= 1")
-        for k in ("blend_frames", "n_frequent", "n_rare"):
-            if getattr(self, k) < 0:
-                raise ValueError(f"{k} must be >= 0")
+        if self.blend_frames < 0:
+            raise ValueError("blend_frames must be >= 0")
         if self.max_actions < self.min_actions:
             raise ValueError("max_actions must be >= min_actions")
-        if self.n_frequent + self.n_rare < 1:
-            raise ValueError("n_frequent + n_rare must be >= 1")
-        for k in ("velocity_weight", "rare_weight"):
+        if self.max_action_frames < self.min_action_frames:
+            raise ValueError("max_action_frames must be >= min_action_frames")
+        if len(self.frequent_weights) < self.n_frequent or not all(
+                math.isfinite(w) and w > 0 for w in self.frequent_weights):
+            raise ValueError("frequent_weights needs n_frequent finite weights > 0")
+        if not (math.isfinite(self.rare_share) and 0 <= self.rare_share < 1):
+            raise ValueError("rare_share must be in [0, 1)")
+        for k in ("velocity_weight", "world_offset_m", "foot_weight"):
             if not (math.isfinite(getattr(self, k)) and getattr(self, k) >= 0):
                 raise ValueError(f"{k} must be finite and >= 0")
-        for k in ("frequent_weight", "foot_contact_m"):
-            if not (math.isfinite(getattr(self, k)) and getattr(self, k) > 0):
-                raise ValueError(f"{k} must be finite and > 0")
+        if not (math.isfinite(self.foot_contact_m) and self.foot_contact_m > 0):
+            raise ValueError("foot_contact_m must be finite and > 0")
         return self
 
     @classmethod
     def resolve(cls, overrides=None) -> "ComposeConfig":
         """A config from ``None`` (defaults), a ComposeConfig or a dict of overrides
         (a ConfigError names the bad field)."""
-        if overrides is None:
-            return cls()
-        if isinstance(overrides, cls):
-            return overrides
-        try:
-            return cls(**dict(overrides))
-        except ValidationError as e:
-            err = e.errors()[0]
-            loc = ".".join(str(p) for p in err.get("loc", ())) or "?"
-            raise ConfigError(f"compose config: field {loc!r}: {err['msg']}") from None
-        except TypeError as e:
-            raise ConfigError(f"compose config: {e}") from None
+        from repro.config_errors import resolve_config
+
+        return resolve_config(cls, overrides, "compose config: field", type_lead="compose config")
 
 
 # ============================================================================ the result
@@ -296,9 +270,9 @@ class SequenceSet:
         frame of segment ``a``'s source clip (the inverse of ``a``'s rigid transform)."""
         yaw = -float(self.seg_yaw[a])
         rot = np.array(rotations, dtype=np.float64)
-        rot[:, 0] = _quat_yaw_mul(np.full(rot.shape[0], yaw), rot[:, 0])
+        rot[:, 0] = quat_yaw_mul(np.full(rot.shape[0], yaw), rot[:, 0])
         r = np.asarray(root, dtype=np.float64) - self.seg_offset[a]
-        r = _rot_y(r, np.full(r.shape[0], yaw))
+        r = rot_y(r, np.full(r.shape[0], yaw))
         return rot.astype(np.float32), r.astype(np.float32)
 
     def context(self, a: int, K: int) -> tuple[np.ndarray, np.ndarray]:
@@ -333,391 +307,97 @@ class SequenceSet:
         return np.bincount(a * C + b, minlength=C * C).reshape(C, C).astype(np.int64)
 
     def junction_quality(self) -> dict:
-        """Velocity jump and foot slide at junctions vs inside the clips (see docs/data.md).
-
-        - velocity jump: mean over joints of ``||v_t − v_{t−1}||`` (cm/frame², ``v`` the joint
-          frame difference) at frames ``t`` whose stencil ``t−2..t`` touches a transition frame
-          or spans two segments ("junction"), vs stencils inside one segment ("inside").
-        - foot slide: mean horizontal speed (cm/frame) of the foot joints on frames where that
-          foot is within ``foot_contact_m`` of its lowest height in its source clip (transition
-          frames: the lower of the two neighbouring clips'), same junction/inside partition.
-        """
+        """Velocity jump and foot slide at junctions vs inside the clips
+        (:func:`repro.data.sequence_card.junction_quality`)."""
         if "junction_quality" not in self._cache:
-            self._cache["junction_quality"] = _junction_quality(self)
+            from repro.data.sequence_card import junction_quality
+
+            self._cache["junction_quality"] = junction_quality(self)
         return self._cache["junction_quality"]
 
     def card(self) -> dict:
-        """A JSON-able summary (what ``repro data info`` prints and ``card.json`` stores)."""
+        """A JSON-able summary (what ``repro data info`` prints and ``card.json`` stores;
+        :func:`repro.data.sequence_card.card`)."""
         if "card" not in self._cache:
-            self._cache["card"] = _card(self)
+            from repro.data.sequence_card import card
+
+            self._cache["card"] = card(self)
         return json.loads(json.dumps(self._cache["card"]))
 
 
-# ============================================================================ small math
-def _rot_y(v: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """``R_y(angle) @ v`` for vectors (..., 3); ``angle`` broadcasts to ``v[..., 0]``."""
-    c, s = np.cos(angle), np.sin(angle)
-    x, z = v[..., 0], v[..., 2]
-    out = np.array(v, dtype=np.float64, copy=True)
-    out[..., 0] = c * x + s * z
-    out[..., 2] = -s * x + c * z
-    return out
+# ============================================================================ composition
+def _placement(cfg: ComposeConfig, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Start heading (n,) and ground offset (n, 3) of each sequence (``world_placement``)."""
+    if cfg.world_placement == "origin":
+        return np.zeros(n), np.zeros((n, 3))
+    rng = numpy_rng(cfg.seed, "compose", COMPOSE_VERSION, "placement")
+    yaw = rng.uniform(-math.pi, math.pi, n)
+    off = np.zeros((n, 3))
+    off[:, [0, 2]] = rng.uniform(-cfg.world_offset_m, cfg.world_offset_m, (n, 2))
+    return yaw, off
 
 
-def _quat_yaw_mul(angle: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Quaternion product ``q_y(angle) ⊗ q`` (xyzw), i.e. the rotation ``R_y(angle) · R(q)``."""
-    c, s = np.cos(angle / 2.0), np.sin(angle / 2.0)
-    q = np.asarray(q, dtype=np.float64)
-    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack([c * x + s * z, c * y + s * w, c * z - s * x, c * w - s * y], axis=-1)
+def _fit(target: np.ndarray, src: np.ndarray) -> tuple[float, np.ndarray]:
+    """The rotation about +Y and ground-plane shift ``(yaw, off)`` that carry the points
+    ``src`` (n, 3) closest to ``target`` (n, 3) in the ground plane (least squares; one point:
+    the shift only, yaw 0)."""
+    a = target[:, [0, 2]] - target[:, [0, 2]].mean(axis=0)
+    b = src[:, [0, 2]] - src[:, [0, 2]].mean(axis=0)
+    # rot_y(v, t): x' = cos t x + sin t z, z' = -sin t x + cos t z
+    yaw = float(np.arctan2((a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]).sum(),
+                           (a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]).sum())) if len(src) > 1 else 0.0
+    moved = rot_y(src, yaw).mean(axis=0)
+    goal = target.mean(axis=0)
+    return yaw, np.array([goal[0] - moved[0], 0.0, goal[2] - moved[2]])
 
 
-def _wrap(a: float) -> float:
-    return float(math.atan2(math.sin(a), math.cos(a)))
-
-
-# ============================================================================ features
-@dataclass
-class _Windows:
-    """Per-clip entry (first W frames) and exit (last W frames) windows with features.
-
-    ``*_loc`` (N, W) local frame indices, ``*_ok`` (N, W) validity, ``*_p``/``*_v`` (N, W, D)
-    facing-normalised pose and velocity features, ``*_h`` (N, W) headings, ``*_root`` and
-    ``*_rv`` (N, W, 3) root position and root velocity in the clip's world frame.
-    """
-
-    en_loc: np.ndarray
-    en_ok: np.ndarray
-    en_p: np.ndarray
-    en_v: np.ndarray
-    en_h: np.ndarray
-    en_root: np.ndarray
-    en_rv: np.ndarray
-    ex_loc: np.ndarray
-    ex_ok: np.ndarray
-    ex_p: np.ndarray
-    ex_v: np.ndarray
-    ex_h: np.ndarray
-    ex_root: np.ndarray
-    ex_rv: np.ndarray
-    ex_first: np.ndarray  # (N,) local index of the exit window's first frame
-
-
-def _headings(clips: ClipSet, rows: np.ndarray, axis: str) -> np.ndarray:
-    """Body heading (radians) of packed frame ``rows``: :func:`repro.motion.heading.body_heading`
-    computed from the root-to-pelvis chain only (the other joints do not enter it)."""
-    import torch
-
-    from repro.motion.heading import HEADING_AXES, body_frame, heading_angle
-    from repro.motion.rotations import quat_to_matrix
-
-    sk = clips.skeleton
-    body = body_frame(sk)
-    chain = [body.pelvis]
-    while sk.parents[chain[-1]] != -1:
-        chain.append(sk.parents[chain[-1]])
-    chain = chain[::-1]
-    q = torch.from_numpy(np.asarray(clips.rotations[rows][:, chain], dtype=np.float64))
-    R = quat_to_matrix(q)
-    G = R[:, 0]
-    for k in range(1, len(chain)):
-        G = G @ R[:, k]
-    return heading_angle(G, body.axis(axis), HEADING_AXES[axis]).numpy()
-
-
-def _windows(clips: ClipSet, W: int, axis: str) -> _Windows:
-    N = len(clips)
+def _layout(clips: ClipSet, ft, cfg: ComposeConfig, walks, anchors: list[int]) -> dict:
+    """Segment and transition tables, with each segment's rigid transform: B's heading at its
+    entry cut equals A's at ``e = i + blend_frames + 1`` and the mean ground-plane position of
+    the anchor joints coincide there (:mod:`repro.data.compose_walk`)."""
+    L = np.asarray(clips.lengths, np.int64)
+    labels = np.asarray(clips.labels, np.int64)
     starts = np.asarray(clips.starts, np.int64)
-    L = np.asarray(clips.lengths, np.int64)
-    k = np.arange(W, dtype=np.int64)[None, :]
-    en_raw = np.broadcast_to(k, (N, W))
-    ex_first = np.maximum(L - W, 0)
-    ex_raw = ex_first[:, None] + k
-    out = {}
-    for tag, raw in (("en", en_raw), ("ex", ex_raw)):
-        ok = raw < L[:, None]
-        loc = np.minimum(raw, L[:, None] - 1)
-        rows = starts[:, None] + loc
-        # velocity: x[t] - x[t-1]; at t = 0 the forward difference (zero for 1-frame clips)
-        a = np.where(loc >= 1, rows - 1, rows)
-        b = np.where(loc >= 1, rows, np.minimum(rows + 1, (starts + L - 1)[:, None]))
-        fr, fa, fb = rows.reshape(-1), a.reshape(-1), b.reshape(-1)
-        h = _headings(clips, fr, axis)
-        root = np.asarray(clips.root[fr], np.float64)
-        jnt = np.asarray(clips.joints[fr], np.float64)
-        vel = np.asarray(clips.joints[fb], np.float64) - np.asarray(clips.joints[fa], np.float64)
-        rv = np.asarray(clips.root[fb], np.float64) - np.asarray(clips.root[fa], np.float64)
-        p = _rot_y(jnt - root[:, None], -h[:, None]).reshape(len(fr), -1)
-        v = _rot_y(vel, -h[:, None]).reshape(len(fr), -1)
-        D = p.shape[1]
-        out.update({f"{tag}_loc": loc, f"{tag}_ok": ok, f"{tag}_p": p.reshape(N, W, D),
-                    f"{tag}_v": v.reshape(N, W, D), f"{tag}_h": h.reshape(N, W),
-                    f"{tag}_root": root.reshape(N, W, 3), f"{tag}_rv": rv.reshape(N, W, 3)})
-    return _Windows(ex_first=ex_first, **out)
-
-
-def _best_joins(win: _Windows, A: np.ndarray, ex_mask: np.ndarray, B: np.ndarray,
-                en_mask: np.ndarray, vw: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Cheapest (exit i of A[p], entry j of B[p]) per pair p, vectorised.
-
-    ``ex_mask``/``en_mask`` (P, W): allowed window slots.  Returns (cost (P,), i (P,) and
-    j (P,) as *local frame indices* of the clips; cost ``inf`` and i = j = -1 when no slot is
-    allowed).  Ties go to the first slot in (i, j) row-major order.
-    """
-    P = A.shape[0]
-    W = win.en_ok.shape[1]
-    cost = np.empty(P)
-    ii = np.empty(P, np.int64)
-    jj = np.empty(P, np.int64)
-    chunk = max(1, 4096 // (W * W) * 16)
-    for s in range(0, P, chunk):
-        a, b = A[s:s + chunk], B[s:s + chunk]
-        dp = np.linalg.norm(win.ex_p[a][:, :, None] - win.en_p[b][:, None], axis=-1)
-        dv = np.linalg.norm(win.ex_v[a][:, :, None] - win.en_v[b][:, None], axis=-1)
-        c = dp + vw * dv
-        ok = ex_mask[s:s + chunk][:, :, None] & en_mask[s:s + chunk][:, None, :]
-        c = np.where(ok, c, np.inf).reshape(len(a), W * W)
-        kk = np.argmin(c, axis=1)
-        best = c[np.arange(len(a)), kk]
-        cost[s:s + chunk] = best
-        bad = ~np.isfinite(best)
-        ki, kj = kk // W, kk % W
-        ii[s:s + chunk] = np.where(bad, -1, win.ex_loc[a, ki])
-        jj[s:s + chunk] = np.where(bad, -1, win.en_loc[b, kj])
-    return cost, ii, jj
-
-
-# ============================================================================ preference
-def _min_len(L: np.ndarray, cfg: ComposeConfig) -> np.ndarray:
-    return np.minimum(cfg.min_action_frames, L)
-
-
-def _entry_mask_action(win: _Windows, B: np.ndarray, L: np.ndarray, cfg: ComposeConfig):
-    """Entry slots of action clips B that leave room for their minimum length."""
-    return win.en_ok[B] & (win.en_loc[B] <= (L[B] - _min_len(L[B], cfg))[:, None])
-
-
-def _exit_mask_action(win: _Windows, A: np.ndarray, entry: np.ndarray, L: np.ndarray,
-                      cfg: ComposeConfig):
-    """Exit slots of action clips A (entered at local frame ``entry``) keeping their minimum."""
-    return win.ex_ok[A] & (win.ex_loc[A] >= (entry + _min_len(L[A], cfg) - 1)[:, None])
-
-
-def _preference(clips: ClipSet, win: _Windows, cfg: ComposeConfig) -> tuple[np.ndarray, np.ndarray]:
-    """(preference (C, C), median best join cost (C, C)) from seeded samples of train clips."""
-    C = clips.n_classes
-    S = cfg.preference_samples
-    L = np.asarray(clips.lengths, np.int64)
-    labels = np.asarray(clips.labels, np.int64)
-    split = np.asarray(clips.split)
-    pools = []
-    for c in range(C):
-        idx = np.flatnonzero((labels == c) & (split == TRAIN))
-        if idx.size == 0:  # no train clip of this tag: fall back to all its clips
-            idx = np.flatnonzero(labels == c)
-        pools.append(idx)
-    rng = numpy_rng(cfg.seed, "compose", COMPOSE_VERSION, "preference-samples")
-    A_list, B_list, pair = [], [], []
-    for a in range(C):
-        for b in range(C):
-            pa, pb = pools[a], pools[b]
-            if pa.size == 0 or pb.size == 0:
-                continue
-            ca = rng.choice(pa, S, replace=pa.size < S)
-            cb = rng.choice(pb, S, replace=pb.size < S)
-            if a == b and pa.size > 1:  # a clip never joins itself
-                pos = np.searchsorted(pa, cb)
-                cb = np.where(ca == cb, pa[(pos + 1) % pa.size], cb)
-            A_list.append(ca)
-            B_list.append(cb)
-            pair.append(np.full(S, a * C + b))
-    med = np.full((C, C), np.inf)
-    if A_list:
-        A = np.concatenate(A_list)
-        B = np.concatenate(B_list)
-        pr = np.concatenate(pair)
-        cost, _, _ = _best_joins(win, A, _exit_mask_action(win, A, np.zeros_like(A), L, cfg),
-                                 B, _entry_mask_action(win, B, L, cfg), cfg.velocity_weight)
-        cost = cost.reshape(-1, S)
-        med.reshape(-1)[pr.reshape(-1, S)[:, 0]] = np.median(cost, axis=1)
-    ties = numpy_rng(cfg.seed, "compose", COMPOSE_VERSION, "preference-ties")
-    pref = np.zeros((C, C))
-    for a in range(C):
-        order = np.lexsort((ties.permutation(C), med[a]))
-        for r, b in enumerate(order):
-            if not np.isfinite(med[a, b]):
-                continue
-            if r < cfg.n_frequent:
-                pref[a, b] = cfg.frequent_weight
-            elif r < cfg.n_frequent + cfg.n_rare:
-                pref[a, b] = cfg.rare_weight
-    # every tag needs a predecessor (lead-ins): the cheapest row into an uncovered column
-    col_ties = numpy_rng(cfg.seed, "compose", COMPOSE_VERSION, "preference-columns")
-    for b in range(C):
-        if (pref[:, b] > 0).any() or not np.isfinite(med[:, b]).any():
-            continue
-        a = int(np.lexsort((col_ties.permutation(C), med[:, b]))[0])
-        pref[a, b] = cfg.rare_weight if cfg.rare_weight > 0 else cfg.frequent_weight
-    return pref, med
-
-
-# ============================================================================ the walk
-class _Seq:
-    __slots__ = ("clips", "roles", "entry", "exit")
-
-    def __init__(self):
-        self.clips: list[int] = []
-        self.roles: list[int] = []
-        self.entry: list[int] = []   # local entry cut (-1: none, the lead-in)
-        self.exit: list[int] = []    # local exit cut (-1: none, the lead-out)
-
-
-def _draw(rng: np.random.Generator, weights: np.ndarray) -> int:
-    return int(rng.choice(weights.shape[0], p=weights / weights.sum()))
-
-
-def _walk_split(clips: ClipSet, win: _Windows, pref: np.ndarray, cfg: ComposeConfig,
-                split: int) -> list[_Seq]:
-    C = clips.n_classes
-    L = np.asarray(clips.lengths, np.int64)
-    labels = np.asarray(clips.labels, np.int64)
-    members = np.flatnonzero(np.asarray(clips.split) == split)
-    if members.size == 0:
-        return []
-    if members.size < 2:
-        raise DataError(f"{clips.name}: the {('train', 'test')[split]} split has one clip; "
-                        "composing sequences needs at least two (lead-ins/lead-outs reuse "
-                        "another clip of the split)")
-    rng = numpy_rng(cfg.seed, "compose", COMPOSE_VERSION, "walk", split)
-    by_tag = [members[labels[members] == c] for c in range(C)]
-    unused = [set(x.tolist()) for x in by_tag]
-    n_left = int(members.size)
-    vw = cfg.velocity_weight
-    K = cfg.candidates_per_step
-
-    def candidates(pool: np.ndarray) -> np.ndarray:
-        if pool.size > K:
-            return rng.choice(pool, K, replace=False)
-        return pool
-
-    def pick_tag(weights: np.ndarray, avail: np.ndarray) -> int:
-        w = weights * avail
-        if w.sum() > 0:
-            return _draw(rng, w)
-        return _draw(rng, avail.astype(np.float64))  # fallback: uniform over available tags
-
-    seqs: list[_Seq] = []
-    while n_left:
-        sq = _Seq()
-        n_target = int(rng.integers(cfg.min_actions, cfg.max_actions + 1))
-        pool_all = np.array(sorted(set().union(*unused)), dtype=np.int64)
-        first = int(rng.choice(pool_all))
-        unused[labels[first]].discard(first)
-        n_left -= 1
-        # lead-in: tag ∝ the preference column of the first action's tag
-        avail = np.array([(by_tag[c] != first).any() for c in range(C)])
-        t = pick_tag(pref[:, labels[first]], avail)
-        cand = candidates(by_tag[t][by_tag[t] != first])
-        B = np.full(cand.size, first)
-        cost, ii, jj = _best_joins(win, cand, win.ex_ok[cand], B,
-                                   _entry_mask_action(win, B, L, cfg), vw)
-        k = int(np.argmin(cost))
-        sq.clips += [int(cand[k]), first]
-        sq.roles += [ROLE_LEAD_IN, ROLE_ACTION]
-        sq.entry += [-1, int(jj[k])]
-        sq.exit += [int(ii[k])]
-        cur = first
-        n_act = 1
-        while n_act < n_target:
-            has = np.array([len(u) > 0 for u in unused])
-            w = pref[labels[cur]] * has
-            if not w.sum() > 0:
-                break
-            t = _draw(rng, w)
-            cand = candidates(np.array(sorted(unused[t]), dtype=np.int64))
-            A = np.full(cand.size, cur)
-            cost, ii, jj = _best_joins(
-                win, A, _exit_mask_action(win, A, np.full(cand.size, sq.entry[-1]), L, cfg),
-                cand, _entry_mask_action(win, cand, L, cfg), vw)
-            k = int(np.argmin(cost))
-            nxt = int(cand[k])
-            unused[t].discard(nxt)
-            n_left -= 1
-            sq.exit.append(int(ii[k]))
-            sq.clips.append(nxt)
-            sq.roles.append(ROLE_ACTION)
-            sq.entry.append(int(jj[k]))
-            cur = nxt
-            n_act += 1
-        # lead-out: tag ∝ the preference row of the last action's tag
-        avail = np.array([(by_tag[c] != cur).any() for c in range(C)])
-        t = pick_tag(pref[labels[cur]], avail)
-        cand = candidates(by_tag[t][by_tag[t] != cur])
-        A = np.full(cand.size, cur)
-        cost, ii, jj = _best_joins(
-            win, A, _exit_mask_action(win, A, np.full(cand.size, sq.entry[-1]), L, cfg),
-            cand, win.en_ok[cand], vw)
-        k = int(np.argmin(cost))
-        sq.exit.append(int(ii[k]))
-        sq.clips.append(int(cand[k]))
-        sq.roles.append(ROLE_LEAD_OUT)
-        sq.entry.append(int(jj[k]))
-        sq.exit.append(-1)
-        seqs.append(sq)
-    return seqs
-
-
-# ============================================================================ assembly
-def _layout(clips: ClipSet, win: _Windows, cfg: ComposeConfig, walks: list[tuple[int, _Seq]]):
-    """Segment and transition tables, with each segment's rigid transform."""
-    L = np.asarray(clips.lengths, np.int64)
-    labels = np.asarray(clips.labels, np.int64)
-    n = cfg.blend_frames
+    k = cfg.blend_frames
     seg = collections.defaultdict(list)
     trans = collections.defaultdict(list)
     seq_len, seq_split = [], []
-    for s, (split, sq) in enumerate(walks):
+    yaw0, off0 = _placement(cfg, len(walks))
+
+    def points(clip: int, f: int) -> np.ndarray:
+        return np.asarray(clips.joints[starts[clip] + f, anchors], np.float64)
+
+    for s, (split, wk) in enumerate(walks):
         cursor = 0
-        yaw, off = 0.0, np.zeros(3)  # the sequence's world frame is its lead-in clip's own
-        m = len(sq.clips)
-        for p in range(m):
-            c, role = sq.clips[p], sq.roles[p]
+        yaw, off = float(yaw0[s]), off0[s].copy()
+        for p in range(len(wk.clips)):
+            c, role = wk.clips[p], wk.roles[p]
             if role == ROLE_LEAD_IN:
-                end = sq.exit[p]
+                end = wk.exit[p]
                 start = max(0, end - cfg.lead_frames + 1)
             elif role == ROLE_LEAD_OUT:
-                start = sq.entry[p]
+                start = wk.entry[p]
                 end = min(int(L[c]) - 1, start + cfg.lead_frames - 1)
             else:
-                start, end = sq.entry[p], sq.exit[p]
+                start, end = wk.entry[p], wk.exit[p]
             if p > 0:
-                # align on the junction with the previous segment (A exits at i, B enters at j)
-                pa, i, j = sq.clips[p - 1], sq.exit[p - 1], start
-                ki = i - int(win.ex_first[pa])
-                hA = float(win.ex_h[pa, ki]) + yaw
-                rA = _rot_y(win.ex_root[pa, ki], yaw) + off
-                vA = _rot_y(win.ex_rv[pa, ki], yaw)
-                yaw_b = _wrap(hA - float(win.en_h[c, j]))
-                vB = _rot_y(win.en_rv[c, j], yaw_b)
-                target = rA + (n + 1) * 0.5 * (vA + vB)
-                rB = _rot_y(win.en_root[c, j], yaw_b)
-                yaw, off = yaw_b, np.array([target[0] - rB[0], 0.0, target[2] - rB[2]])
+                pa, e = wk.clips[p - 1], wk.exit[p - 1] + k + 1
+                yaw, off = _fit(rot_y(points(pa, e), yaw) + off, points(c, start))
                 trans["seq"].append(s)
                 trans["start"].append(cursor)
-                trans["length"].append(n)
-                cursor += n
-            length = end - start + 1
+                trans["length"].append(k)
+                cursor += k
             seg["seq"].append(s)
             seg["pos"].append(p)
             seg["role"].append(role)
             seg["start"].append(cursor)
-            seg["length"].append(length)
+            seg["length"].append(end - start + 1)
             seg["label"].append(int(labels[c]))
             seg["clip"].append(c)
             seg["clip_start"].append(start)
             seg["yaw"].append(yaw)
             seg["offset"].append(off)
-            cursor += length
+            cursor += end - start + 1
         seq_len.append(cursor)
         seq_split.append(split)
     i64 = lambda x: np.asarray(x, dtype=np.int64)  # noqa: E731
@@ -739,9 +419,16 @@ def _layout(clips: ClipSet, win: _Windows, cfg: ComposeConfig, walks: list[tuple
     }
 
 
-def _frames(clips: ClipSet, idx: dict) -> dict:
+def _placed(clips: ClipSet, rows: np.ndarray, yaw, off) -> tuple[np.ndarray, np.ndarray]:
+    """Rotations (float64) and root of source ``rows`` under the transform (yaw, off)."""
+    rot = np.asarray(clips.rotations[rows], np.float64).copy()
+    rot[:, 0] = quat_yaw_mul(np.broadcast_to(yaw, rows.shape), rot[:, 0])
+    root = rot_y(np.asarray(clips.root[rows], np.float64), yaw) + off
+    return rot, root
+
+
+def _frames(clips: ClipSet, idx: dict, k: int) -> dict:
     """Composed rotations, root, joints and frame labels from the index arrays."""
-    import roma
     import torch
 
     from repro.motion.rotations import quat_to_matrix
@@ -752,34 +439,33 @@ def _frames(clips: ClipSet, idx: dict) -> dict:
     rot = np.zeros((F, J, 4), np.float32)
     root = np.zeros((F, 3), np.float64)
     label = np.full(F, -1, np.int64)
-    # segment frames: the source frames under each segment's rigid transform
+    starts = np.asarray(clips.starts, np.int64)
     lens = idx["seg_length"]
     if lens.size:
         ramp = np.arange(int(lens.sum()), dtype=np.int64) - np.repeat(np.cumsum(lens) - lens, lens)
         out = np.repeat(idx["seq_starts"][idx["seg_seq"]] + idx["seg_start"], lens) + ramp
-        src = np.repeat(np.asarray(clips.starts, np.int64)[idx["seg_clip"]]
-                        + idx["seg_clip_start"], lens) + ramp
+        src = np.repeat(starts[idx["seg_clip"]] + idx["seg_clip_start"], lens) + ramp
         yaw = np.repeat(idx["seg_yaw"], lens)
         rot[out] = clips.rotations[src]
-        rot[out, 0] = _quat_yaw_mul(yaw, np.asarray(clips.rotations[src, 0], np.float64))
-        root[out] = (_rot_y(np.asarray(clips.root[src], np.float64), yaw)
+        rot[out, 0] = quat_yaw_mul(yaw, np.asarray(clips.rotations[src, 0], np.float64))
+        root[out] = (rot_y(np.asarray(clips.root[src], np.float64), yaw)
                      + np.repeat(idx["seg_offset"], lens, axis=0))
         label[out] = np.repeat(idx["seg_label"], lens)
         del ramp, out, src, yaw
-    # transitions: slerp / lerp strictly between the neighbouring frames
-    tl = idx["trans_length"]
-    if tl.size and int(tl.max()) > 0:
-        n = int(tl.max())  # every transition has blend_frames frames
-        first = idx["seq_starts"][idx["trans_seq"]] + idx["trans_start"]
-        a, b = first - 1, first + n
-        steps = torch.arange(1, n + 1, dtype=torch.float64) / (n + 1)
-        q = roma.unitquat_slerp(torch.from_numpy(rot[a].astype(np.float64)),
-                                torch.from_numpy(rot[b].astype(np.float64)), steps,
-                                shortest_arc=True).numpy()             # (n, T, J, 4)
-        rows = first[None, :] + np.arange(n)[:, None]                  # (n, T)
-        rot[rows] = q
-        s = steps.numpy()[:, None, None]
-        root[rows] = root[a][None] + s * (root[b] - root[a])[None]
+    if k > 0:
+        after = np.flatnonzero(idx["seg_pos"] > 0)          # transition t sits before after[t]
+        for t, b in enumerate(after.tolist()):
+            a = b - 1
+            ya, oa = float(idx["seg_yaw"][a]), idx["seg_offset"][a]
+            i = int(idx["seg_clip_start"][a] + idx["seg_length"][a] - 1)
+            rows = starts[idx["seg_clip"][a]] + i + 1 + np.arange(k + 1)   # i+1 .. i+k, e
+            ra, pa = _placed(clips, rows, ya, oa)
+            jb = starts[idx["seg_clip"][b]] + idx["seg_clip_start"][b] + np.arange(2)  # j, j+1
+            rb, pb = _placed(clips, jb, float(idx["seg_yaw"][b]), idx["seg_offset"][b])
+            q, r = transition_frames(ra, pa, rb, pb)
+            first = int(idx["seq_starts"][idx["trans_seq"][t]] + idx["trans_start"][t])
+            rot[first:first + k] = q
+            root[first:first + k] = r
     joints = np.empty((F, J, 3), np.float32)
     step = 32768
     for s0 in range(0, F, step):
@@ -798,6 +484,23 @@ def _index_sha(idx: dict) -> str:
         h.update(f"{k}:{a.dtype.str}:{a.shape}".encode())
         h.update(a.tobytes())
     return h.hexdigest()
+
+
+def foot_joints(clips: ClipSet, cfg: ComposeConfig) -> list[int]:
+    """Indices of the foot joints: ``cfg.foot_joints`` by name, else the joints named like a
+    foot, toe or ankle (ConfigError for an unknown name)."""
+    import re
+
+    names = clips.skeleton.names
+    if cfg.foot_joints is not None:
+        out = []
+        for n in cfg.foot_joints:
+            if n not in names:
+                raise ConfigError(f"compose config: foot joint {n!r} is not a joint of "
+                                  f"{clips.name!r}")
+            out.append(names.index(n))
+        return out
+    return [j for j, n in enumerate(names) if re.search(r"(foot|toe|ankle)", n, re.IGNORECASE)]
 
 
 def compose_sequences(clips: ClipSet, config: ComposeConfig | dict | None = None, *,
@@ -824,168 +527,22 @@ def _compose(clips: ClipSet, config, name: str | None) -> SequenceSet:
     labels = np.asarray(clips.labels, np.int64)
     if labels.min() < 0 or labels.max() >= C:
         raise DataError(f"ClipSet {clips.name!r}: labels outside 0..{C - 1}")
-    win = _windows(clips, cfg.cut_window, cfg.heading_axis)
-    pref, _ = _preference(clips, win, cfg)
-    walks: list[tuple[int, _Seq]] = []
+    feet = foot_joints(clips, cfg)
+    ft = features(clips, cfg.heading_axis, feet, cfg.foot_weight)
+    pref, _ = tag_matrix(clips, ft, cfg, COMPOSE_VERSION)
+    walks = []
     for split in (TRAIN, TEST):
-        walks += [(split, sq) for sq in _walk_split(clips, win, pref, cfg, split)]
-    idx = _layout(clips, win, cfg, walks)
+        walks += [(split, w) for w in walk_split(clips, ft, pref, cfg, split, COMPOSE_VERSION)]
+    idx = _layout(clips, ft, cfg, walks, anchor_joints(clips.skeleton, feet))
+    del ft
     idx["preference"] = pref
     fp = content_key({"version": COMPOSE_VERSION, "source": clips.fingerprint, "config": cfg,
                       "index": _index_sha(idx)})
-    frames = _frames(clips, idx)
+    frames = _frames(clips, idx, cfg.blend_frames)
     for a in list(idx.values()) + list(frames.values()):
         a.setflags(write=False)
     return SequenceSet(clips=clips, config=cfg, name=name or f"{clips.name}-seq",
                        fingerprint=fp, **idx, **frames)
-
-
-# ============================================================================ quality, card
-def _foot_joints(seqs: SequenceSet) -> list[int]:
-    names = seqs.skeleton.names
-    if seqs.config.foot_joints is not None:
-        out = []
-        for n in seqs.config.foot_joints:
-            if n not in names:
-                raise ConfigError(f"compose config: foot joint {n!r} is not a joint of "
-                                  f"{seqs.clips.name!r}")
-            out.append(names.index(n))
-        return out
-    return [j for j, n in enumerate(names) if _FOOT_NAME.search(n)]
-
-
-def _stats(x: np.ndarray) -> dict:
-    if x.size == 0:
-        return {"mean": None, "median": None, "n": 0}
-    return {"mean": round(float(x.mean()), 4), "median": round(float(np.median(x)), 4),
-            "n": int(x.size)}
-
-
-def _junction_quality(seqs: SequenceSet) -> dict:
-    F = seqs.n_frames
-    cfg = seqs.config
-    # piece id per frame: segments 0..A-1, transition frames -1; sequence id per frame
-    piece = np.full(F, -1, np.int64)
-    lens = seqs.seg_length
-    if lens.size:
-        ramp = np.arange(int(lens.sum())) - np.repeat(np.cumsum(lens) - lens, lens)
-        rows = np.repeat(seqs.seq_starts[seqs.seg_seq] + seqs.seg_start, lens) + ramp
-        piece[rows] = np.repeat(np.arange(lens.size), lens)
-    seq_of = np.repeat(np.arange(len(seqs)), seqs.seq_lengths)
-    out = {"units": {"velocity_jump": "cm/frame^2", "foot_slide": "cm/frame"},
-           "foot_contact_m": cfg.foot_contact_m}
-    feet = _foot_joints(seqs)
-    out["foot_joints"] = [seqs.skeleton.names[j] for j in feet]
-    ground = None
-    if feet:
-        cl = seqs.clips
-        fy = np.asarray(cl.joints[:, feet, 1], np.float64)
-        L = np.asarray(cl.lengths, np.int64)
-        clip_min = np.full((len(cl), len(feet)), np.inf)
-        nz = L > 0
-        clip_min[nz] = np.minimum.reduceat(fy, np.asarray(cl.starts, np.int64)[nz], axis=0)
-        ground = np.full((F, len(feet)), np.nan)
-        ground[piece >= 0] = clip_min[seqs.seg_clip[piece[piece >= 0]]]
-        # transition frames: the lower ground of the two neighbouring segments
-        tl = seqs.trans_length
-        if tl.size and int(tl.max()) > 0:
-            first = seqs.seq_starts[seqs.trans_seq] + seqs.trans_start
-            g = np.minimum(ground[first - 1], ground[first + tl])
-            rows = np.repeat(first, tl) + (np.arange(int(tl.sum()))
-                                           - np.repeat(np.cumsum(tl) - tl, tl))
-            ground[rows] = np.repeat(g, tl, axis=0)
-    acc_j, acc_i, slide_j, slide_i = [], [], [], []
-    step = 65536
-    for s0 in range(0, F, step):  # chunks of frames t (stencils reach back 2 frames)
-        lo = max(0, s0 - 2)
-        X = seqs.joints[lo:s0 + step].astype(np.float64) * 100.0  # cm
-        t = np.arange(max(s0, 2), min(F, s0 + step))
-        if t.size:
-            x0, x1, x2 = X[t - 2 - lo], X[t - 1 - lo], X[t - lo]
-            ok = seq_of[t - 2] == seq_of[t]
-            acc = np.linalg.norm(x2 - 2.0 * x1 + x0, axis=-1).mean(axis=-1)
-            p0, p1, p2 = piece[t - 2], piece[t - 1], piece[t]
-            inside = ok & (p0 >= 0) & (p0 == p1) & (p1 == p2)
-            acc_i.append(acc[inside])
-            acc_j.append(acc[ok & ~inside])
-        t = np.arange(max(s0, 1), min(F, s0 + step))
-        if feet and t.size:
-            ok = seq_of[t - 1] == seq_of[t]
-            cur, prev = X[t - lo][:, feet], X[t - 1 - lo][:, feet]
-            contact = (cur[..., 1] / 100.0 - ground[t]) < cfg.foot_contact_m
-            speed = np.linalg.norm((cur - prev)[..., [0, 2]], axis=-1)  # (n, feet) cm/frame
-            inside = ok & (piece[t - 1] >= 0) & (piece[t - 1] == piece[t])
-            slide_i.append(speed[inside[:, None] & contact])
-            slide_j.append(speed[(ok & ~inside)[:, None] & contact])
-    cat = lambda xs: np.concatenate(xs) if xs else np.zeros(0)  # noqa: E731
-    out["velocity_jump"] = {"junction": _stats(cat(acc_j)), "inside": _stats(cat(acc_i))}
-    out["foot_slide"] = {"junction": _stats(cat(slide_j)), "inside": _stats(cat(slide_i))}
-    for k in ("velocity_jump", "foot_slide"):
-        j, i = out[k]["junction"]["mean"], out[k]["inside"]["mean"]
-        out[k]["ratio_of_means"] = round(j / i, 3) if (j is not None and i) else None
-    return out
-
-
-def _pair_summary(counts: np.ndarray, pref: np.ndarray) -> dict:
-    total = int(counts.sum())
-    flat = np.sort(counts.reshape(-1))[::-1]
-    k = max(1, int(round(0.1 * flat.size)))
-    top = float(flat[:k].sum() / total) if total else None
-    freq = float(counts[pref == pref.max()].sum() / total) if total and pref.max() > 0 else None
-    return {"pairs": total, "zero_pairs": int((counts == 0).sum()), "cells": int(counts.size),
-            "top10pct_pairs_mass": None if top is None else round(top, 4),
-            "frequent_pairs_mass": None if freq is None else round(freq, 4)}
-
-
-def _card(seqs: SequenceSet) -> dict:
-    names = list(seqs.label_names)
-    per_split = {}
-    for sname, s in (("train", TRAIN), ("test", TEST)):
-        sq = np.flatnonzero(seqs.seq_split == s)
-        acts = np.bincount(seqs.seg_seq[seqs.segments(split=s)], minlength=len(seqs))[sq]
-        per_split[sname] = {
-            "sequences": int(sq.size),
-            "clips": int((np.asarray(seqs.clips.split) == s).sum()),
-            "segments": {r: int(seqs.segments(split=s, role=i).size)
-                         for i, r in enumerate(ROLE_NAMES)},
-            "actions_per_sequence": ({"min": int(acts.min()), "mean": round(float(acts.mean()), 3),
-                                      "max": int(acts.max())} if acts.size else None),
-            "frames": int(seqs.seq_lengths[sq].sum()),
-        }
-    acts = np.bincount(seqs.seg_seq[seqs.segments()], minlength=len(seqs))
-    train_counts = seqs.tag_pair_counts(TRAIN)
-    test_counts = seqs.tag_pair_counts(TEST)
-    return {
-        "schema": CARD_SCHEMA,
-        "kind": "composed multi-action sequences",
-        "name": seqs.name,
-        "fingerprint": seqs.fingerprint,
-        "compose_version": COMPOSE_VERSION,
-        "source": {"name": seqs.clips.name, "fingerprint": seqs.clips.fingerprint,
-                   "clips": len(seqs.clips), "frames": seqs.clips.n_frames},
-        "stand_in": STAND_IN_NOTE,
-        "config": seqs.config.model_dump(mode="json"),
-        "fps": seqs.fps,
-        "joints": seqs.skeleton.n_joints,
-        "label_names": names,
-        "sequences": {"total": len(seqs), "train": per_split["train"]["sequences"],
-                      "test": per_split["test"]["sequences"]},
-        "segments": {r: int(seqs.segments(role=i).size) for i, r in enumerate(ROLE_NAMES)},
-        "actions_per_sequence": ({"min": int(acts.min()), "mean": round(float(acts.mean()), 3),
-                                  "max": int(acts.max())} if acts.size else None),
-        "frames": {"total": seqs.n_frames,
-                   "transition": int((seqs.frame_label < 0).sum()),
-                   "transitions": int(seqs.trans_seq.size)},
-        "splits": per_split,
-        "tag_pairs": {"label_names": names, "rows": "from (earlier segment)",
-                      "columns": "to (next segment)",
-                      "train": train_counts.tolist(), "test": test_counts.tolist(),
-                      "train_summary": _pair_summary(train_counts, seqs.preference),
-                      "test_summary": _pair_summary(test_counts, seqs.preference)},
-        "preference": {"label_names": names, "matrix": seqs.preference.tolist(),
-                       "nonzero": int((seqs.preference > 0).sum())},
-        "junction_quality": seqs.junction_quality(),
-    }
 
 
 # ============================================================================ caching, views
@@ -1015,109 +572,3 @@ def sequences_for(clips: ClipSet, config: ComposeConfig | dict | None = None, *,
         keep = {k: v for k, v in hit._cache.items() if k == "junction_quality"}
         hit = dataclasses.replace(hit, name=name, _cache=keep)
     return hit
-
-
-#: Sequence views: name → source data set (not registered data sets; see docs/data.md).
-SEQUENCE_VIEWS = {"bandai2-seq": "bandai2", "bandai2-seq-mini": "bandai2-mini"}
-_POINTER = "current.json"
-
-
-def _check_view(name: str) -> str:
-    if name not in SEQUENCE_VIEWS:
-        near = difflib.get_close_matches(name, list(SEQUENCE_VIEWS), n=1)
-        hint = f"; did you mean {near[0]!r}?" if near else ""
-        raise ConfigError(f"unknown sequence view {name!r}{hint} "
-                          f"(known: {', '.join(SEQUENCE_VIEWS)})")
-    return SEQUENCE_VIEWS[name]
-
-
-def _view_source(name: str) -> ClipSet:
-    from repro.data.registry import load_clipset
-    from repro.data.splits import marionette_clipset
-
-    return marionette_clipset(load_clipset(_check_view(name)))
-
-
-def load_view(name: str) -> SequenceSet:
-    """The sequence view ``name``: its source ClipSet (registry) with Neural Marionette's test
-    split (:func:`repro.data.splits.marionette_clipset`, seed 0, 20 % capped at 100 per class),
-    composed with the default :class:`ComposeConfig`.  A missing source raises the registry's
-    MissingDataError (naming ``repro data prepare bandai2``)."""
-    return sequences_for(_view_source(name), ComposeConfig(), name=name)
-
-
-def view_dir(name: str):
-    """Folder of a prepared view: ``datasets_root()/<name>/``."""
-    from repro.data.cache import dataset_dir
-
-    _check_view(name)
-    return dataset_dir(name)
-
-
-def _npz_bytes(arrays: dict) -> bytes:
-    buf = io.BytesIO()
-    np.savez(buf, **{k: np.ascontiguousarray(v) for k, v in arrays.items()})
-    return buf.getvalue()
-
-
-def prepare_view(name: str) -> dict:
-    """Compose view ``name`` and write ``<view_dir>/<fingerprint>/{sequences.npz, card.json}``
-    (index arrays and card, each atomically) and the ``current.json`` pointer.  Returns
-    ``{"path", "fingerprint", "reused", "seconds", "card"}``."""
-    import time
-
-    from repro.store.atomic import atomic_write_bytes, atomic_write_json
-
-    t0 = time.perf_counter()
-    seqs = load_view(name)
-    card = seqs.card()
-    root = view_dir(name)
-    folder = root / seqs.fingerprint
-    reused = False
-    try:
-        reused = json.loads((folder / "card.json").read_text()) == card \
-            and (folder / "sequences.npz").is_file()
-    except (OSError, ValueError):
-        reused = False
-    if not reused:
-        meta = {"schema": np.array(CARD_SCHEMA), "fingerprint": np.array(seqs.fingerprint)}
-        atomic_write_bytes(folder / "sequences.npz", _npz_bytes({**seqs.index_arrays(), **meta}))
-        atomic_write_json(folder / "card.json", card)
-    atomic_write_json(root / _POINTER, {"fingerprint": seqs.fingerprint})
-    return {"path": str(folder), "fingerprint": seqs.fingerprint, "reused": reused,
-            "seconds": round(time.perf_counter() - t0, 3), "card": card}
-
-
-def _stored_card(name: str) -> dict | None:
-    root = view_dir(name)
-    try:
-        fp = json.loads((root / _POINTER).read_text())["fingerprint"]
-        card = json.loads((root / str(fp) / "card.json").read_text())
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
-    return card if isinstance(card, dict) and card.get("schema") == CARD_SCHEMA else None
-
-
-def view_card(name: str) -> dict:
-    """The card of view ``name``: the prepared one when it still matches the source, the
-    compose version and the default config; otherwise composed now."""
-    src = _view_source(name)
-    card = _stored_card(name)
-    if (card is not None and card.get("compose_version") == COMPOSE_VERSION
-            and card.get("source", {}).get("fingerprint") == src.fingerprint
-            and card.get("config") == ComposeConfig().model_dump(mode="json")):
-        return card
-    return sequences_for(src, ComposeConfig(), name=name).card()
-
-
-def view_status(name: str):
-    """A :class:`repro.data.registry.DatasetStatus` for a view: ready when its source is;
-    ``fingerprint`` is the prepared view's (``None`` if not prepared)."""
-    from repro.data.registry import DatasetStatus, get_entry
-
-    st = get_entry(_check_view(name)).status()
-    card = _stored_card(name)
-    return DatasetStatus(st.prepared, str(view_dir(name)),
-                         card.get("fingerprint") if card else None,
-                         None if st.prepared else f"source {SEQUENCE_VIEWS[name]} is not ready: "
-                         f"{st.missing}")

@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from repro.engine.table_facts import real_rows_stored, test_sets_stored
 from repro.errors import ConfigError, ReproError
 
 
@@ -219,7 +220,8 @@ def _train_evaluators_side_by_side(plans, jobs: int, progress: bool) -> None:
 def _gate(plan) -> None:
     """The real-data gate for every band that has a real row (evaluation issue, item 4).
 
-    The real rows the gate reads are stored by content (:func:`_real_rows`), so a rerun
+    The real rows the gate reads are stored by content
+    (:func:`repro.engine.table_facts.real_rows_stored`), so a rerun
     checks the gate without recomputing them, from the evaluator's record (its weights are
     read only when the real rows must be computed); the check itself always runs."""
     from repro.engine.steps import clipset, evaluator_clipset, evaluator_for
@@ -236,36 +238,9 @@ def _gate(plan) -> None:
         cfg = b.step_config(plan.dataset, with_evaluator=True)
         ev = evaluator_for(cfg, weights=False)
         clips = evaluator_clipset(get_protocol(b.protocol, b.params), clipset(plan.dataset))
-        rows = _real_rows(b.evaluator, b.evaluator_key, ev, clips,
+        rows = real_rows_stored(b.evaluator, b.evaluator_key, ev, clips,
                           load=lambda cfg=cfg: evaluator_for(cfg))
         check_real_gate(rows, evaluator_stats(ev))
-
-
-def _real_rows(e: dict, evaluator_key: str, ev, clips, load=None) -> dict:
-    """:func:`repro.eval.real_rows` of one evaluator, stored under a key made of everything
-    they depend on: the evaluator's store key, the clips, the evaluator settings (sample
-    counts), the profile's bootstrap resamples and the source of ``repro.eval.real``.
-    ``ev`` may be a record without weights; ``load()`` then gives the scoring one, called
-    only when the rows are not stored."""
-    from repro.engine.source_hash import source_hash
-    from repro.eval import real_rows
-    from repro.eval.real import _bootstrap_resamples
-    from repro.keys import content_key
-    from repro.store.objects import Store
-
-    key = content_key({"schema": 1, "object": "real_rows", "evaluator": evaluator_key,
-                       "clips": clips.fingerprint, "kind": e["kind"], "dataset": e["dataset"],
-                       "scale": e["scale"], "settings": ev.settings.model_dump(mode="json"),
-                       "bootstrap_resamples": _bootstrap_resamples(e["scale"]),
-                       "source": source_hash("repro.eval.real")})
-
-    def compute(out: Path) -> None:
-        scorer = ev if ev.module is not None or load is None else load()
-        rows = real_rows(e["dataset"], e["scale"], seed=0, kind=e["kind"], evaluator=scorer,
-                         clipset=clips)
-        (out / "real_rows.json").write_text(json.dumps(rows, sort_keys=True))
-
-    return Store().compute(key, "real_rows", compute).read_json("real_rows.json")
 
 
 def run_table(name: str, *, scale: str = "quick", dataset: str | None = None, jobs: int = 1,
@@ -337,6 +312,9 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
             summary["footer"] = _footer(p, ev, rec.run_id, summary.get("budgets"), trainings,
                                         kernels=(rec.data.get("env") or {}).get("kernels"))
             summary["counts"] = counts
+            test_sets = test_sets_stored(p)
+            if test_sets:
+                summary["test_sets"] = test_sets
             rec.write_summary(summary)
             rec.finish()
             out.append((p, summary, rec.run_id))

@@ -664,9 +664,12 @@ def make_view(spec, plan_rows: dict[str, dict], summary: dict | None, footer: li
 
     cells = (summary or {}).get("cells", {})
     unbuilt = (summary or {}).get("unbuilt_columns", {}) if unbuilt is None else unbuilt
+    test_sets = (summary or {}).get("test_sets")  # recorded by the run (table_facts.test_sets_stored)
     if is_figure(spec):
-        return figure_view(spec, plan_rows, summary, footer, _standin(dataset),
-                           _paper_title(spec), unbuilt, _claim_views(spec, summary))
+        fig = figure_view(spec, plan_rows, summary, footer, _standin(dataset),
+                          _paper_title(spec), unbuilt, _claim_views(spec, summary))
+        fig.test_sets = test_sets
+        return fig
     cols = column_views(spec)
     rows = []
     for row in spec.rows:
@@ -701,7 +704,8 @@ def make_view(spec, plan_rows: dict[str, dict], summary: dict | None, footer: li
         footer = list(footer) + [f"Paper cells marked '?' ({', '.join(uncertain)}) are uncertain "
                                  "in the PDF extraction (the spec's note says why); never used."]
     return TableView(spec.id, spec.title, _paper_title(spec), cols, rows,
-                     _claim_views(spec, summary), footer, _standin(dataset), spec.interval)
+                     _claim_views(spec, summary), footer, _standin(dataset), spec.interval,
+                     test_sets=test_sets)
 
 
 def _claim_views(spec, summary: dict | None) -> list[ClaimView]:

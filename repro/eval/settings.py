@@ -91,6 +91,11 @@ class EvaluatorSettings(_Strict):
     feature_dim: int = Field(30, ge=2)
     include_last: bool = Field(False, description="random window starts may reach len − T "
                                "(False: the reference's exclusive bound)")
+    min_window: int | None = Field(None, ge=2, description=(
+        "training windows keep a valid length drawn uniformly in [min_window, window] (the rest "
+        "padded by repeating the last frame, as scoring pads a shorter action); None: window. "
+        "The Neural Marionette protocols set it to the composed actions' shortest length "
+        "(issue 26), so the recogniser reads actions as short as those it scores"))
     test_stride: int | None = Field(None, ge=1, description="test-window stride; None = window // 2")
     facing_joints: tuple[str, str] | None = Field(
         None, description="left hip, right hip whose line gives the heading (heading = remove)")

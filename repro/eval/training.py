@@ -76,6 +76,10 @@ def train_evaluator(clipset: ClipSet, kind: str, settings: EvaluatorSettings, se
         joints, lengths, labels = random_windows(clipset, train_pool, t.windows_per_epoch, ts.window,
                                                  rng, class_balanced=t.class_balanced,
                                                  include_last=ts.include_last)
+        if ts.min_window is not None and ts.min_window < ts.window:
+            # valid lengths as short as the actions scored (padded by to_model_input)
+            lengths = np.minimum(lengths, rng.integers(ts.min_window, ts.window + 1,
+                                                       size=lengths.shape[0]))
         x = torch.from_numpy(to_model_input(joints, lengths, heading=ts.heading, facing=facing))
         if ts.heading == "yaw_augment":
             x = random_yaw(x, gen)

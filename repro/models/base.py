@@ -35,8 +35,9 @@ import os
 from pathlib import Path
 from typing import Any, Callable, ClassVar, Mapping
 
-from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic import BaseModel, ConfigDict
 
+from repro.config_errors import resolve_config
 from repro.errors import ConfigError, DataError, MissingDataError
 from repro.keys import canonical_json, content_key
 from repro.motion.skeleton import Skeleton
@@ -58,18 +59,7 @@ class GeneratorConfig(BaseModel):
     def resolve(cls, overrides: "GeneratorConfig | Mapping[str, Any] | None" = None,
                 *, where: str = "config"):
         """``overrides`` applied over the paper defaults; a ConfigError names the bad field."""
-        if overrides is None:
-            return cls()
-        if isinstance(overrides, cls):
-            return overrides
-        if isinstance(overrides, BaseModel):
-            overrides = overrides.model_dump()
-        try:
-            return cls(**dict(overrides))
-        except ValidationError as e:
-            err = e.errors()[0]
-            field = ".".join(str(p) for p in err.get("loc", ())) or "?"
-            raise ConfigError(f"{where}: {cls.__qualname__} field {field!r}: {err['msg']}") from None
+        return resolve_config(cls, overrides, f"{where}: {cls.__qualname__} field")
 
 
 # ---------------------------------------------------------------------------------------------

@@ -37,8 +37,9 @@ from typing import Literal, Sequence
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, field_validator
 
+from repro.config_errors import resolve_config
 from repro.errors import ConfigError, DataError
 from repro.keys import content_key
 from repro.motion.canon import CanonParams, marionette_normalize, uncanonicalize
@@ -74,16 +75,9 @@ class ItemsConfig(BaseModel):
 
     @classmethod
     def resolve(cls, overrides=None) -> "ItemsConfig":
-        if overrides is None:
-            return cls()
-        if isinstance(overrides, cls):
-            return overrides
-        try:
-            return cls(**dict(overrides))
-        except ValidationError as e:
-            err = e.errors()[0]
-            field = ".".join(str(p) for p in err.get("loc", ())) or "?"
-            raise ConfigError(f"items config: field {field!r}: {err['msg']}") from None
+        """``overrides`` (None, an ItemsConfig or a mapping) over the defaults; a ConfigError
+        names the bad field (:func:`repro.config_errors.resolve_config`)."""
+        return resolve_config(cls, overrides, "items config: field")
 
 
 @dataclass(frozen=True, eq=False)

@@ -28,11 +28,21 @@ raw world frame (no transform at all, so absolute positions and headings enter t
 - ``L_P``: L1 of the pose vectors; ``L_V``: L1 of the joint positions by forward kinematics
   on the data set's skeleton, root translation included (canonical frame, metres).  We have no
   SMPL-H mesh, so FK joints stand in for the mesh vertices (our choice);
-- ``L_acc``: L1 of the second differences ``x[t+1] − 2x[t] + x[t−1]`` of those joint
-  positions, over triples inside ``[T, S_c]``;
-- reduction (paper writes sums; our choice): each L1 is the mean absolute error over valid
-  frames (triples for ``L_acc``) and their components, so the three terms are comparable means
-  in their units whatever the batch or the lengths;
+- ``L_acc`` (``acc_loss``): ``"squared_output"`` (the released code, ``utils/loss.py``
+  ``AccelLoss`` called on the generated joints only in ``models/model.py``): the mean square of
+  the generated joints' second differences ``x[t+1] − 2x[t] + x[t−1]`` over the triples of
+  ``[S_p's last two frames, T̂, Ŝ_c]`` (the code runs it over the whole postprocessed sequence;
+  S_p's frames are given here, so the triples that reach into ``[T̂, Ŝ_c]`` are the ones with a
+  gradient); ``"l1_target"`` (our paper reading: "mesh vertex acceleration loss", no formula):
+  L1 between the generated and the target second differences over triples inside
+  ``[T, S_c]``;
+- scored frames (``loss_frames``): ``"whole"`` (the code: its postprocessor's output covers
+  ``[S_p, T, S_c]`` and every loss reads all of it, so S_p's postprocessed frames are pulled
+  to the given S_p) or ``"generated"`` (the paper's sums over ``i = 1 .. l_t + l_c``);
+- reduction (paper writes sums; our choice): each term is the mean over valid frames (triples
+  for ``L_acc``) and their components, so the three terms are comparable means in their units
+  whatever the batch or the lengths (the code means over every frame of the 120-frame padded
+  window, padding included);
 - ``L_KL = Σ KL(posterior ‖ prior)`` of Gaussians over the latents (``z_p`` and ``z_c``, or the
   single ``z``), summed over the ``d`` dimensions and averaged over the batch items (our
   choice); the reparameterisation noise comes from the training loop's per-epoch torch RNG.
@@ -63,7 +73,7 @@ from repro.models.base import Generator, GeneratorConfig, register
 from repro.models.baseline_io import (item_noise, length_mask, pack_poses, pose_joints,
                                       unpack_poses)
 from repro.models.items import pad_last
-from repro.models.macvae_nets import MACVAENet, hold_frames, kl_gaussians
+from repro.models.macvae_nets import MACVAENet, hold_frames, kl_gaussians, take_frames
 from repro.motion.canon import CanonParams, face_front, uncanonicalize, zero_canon
 from repro.motion.motion import Motion
 from repro.motion.rotations import matrix_to_6d, sixd_to_matrix
@@ -73,7 +83,9 @@ from repro import kernels
 
 
 class MACVAEConfig(GeneratorConfig):
-    """MACVAE hyper-parameters and ablation switches; defaults = the paper."""
+    """MACVAE hyper-parameters and ablation switches.  Defaults: the released code where it and
+    the paper disagree (the paper's reading is the other value of the field; docs/multiact.md,
+    "Paper and released code"), the paper where the code agrees or is silent."""
 
     # network (supp. "Implementation details"; protocols.md §4.2 for ff/dropout/activation)
     d_model: int = 512                 # "512 inner dimensions"; also the latent size d
@@ -87,7 +99,7 @@ class MACVAEConfig(GeneratorConfig):
     lr: float = 5e-5
     weight_decay: float = 0.01         # torch.optim.AdamW's default; the paper states none
     batch_size: int = 16
-    epochs: int = 1300                 # paper; the reference config has 1,200
+    epochs: int = 1200                 # released envs/train.yaml end_epoch; the paper says 1,300
     lambda_acc: float = 1.0
     lambda_kl: float = 1e-5
     # ablations
@@ -96,6 +108,17 @@ class MACVAEConfig(GeneratorConfig):
     #                                    120-frame max input length); longer S_p keep their end
     separate_latent: bool = True       # Table 1 "w/o separate latent"
     prevnet_action_label: bool = False  # Table 1 "a_c to PrevNet" (one-hot appended)
+    # paper <-> released code (default = code; docs/multiact.md "Paper and released code")
+    posterior_pooling: Literal["per_part", "global"] = "per_part"   # code: z_p over T, z_c over S_c; paper: one mean
+    decoder_causal: bool = True        # code: subsequent_mask + causal conv; paper: unmasked
+    transition_pos_enc: bool = True    # code: LayeredPositionalEncoding; paper: plain sinusoid
+    temporal_kernel: int = 5           # code: Conv2d (5, d); paper silent
+    acc_loss: Literal["squared_output", "l1_target"] = "squared_output"   # code: AccelLoss
+    encoder_embedding: Literal["joint", "split"] = "joint"   # code: Linear(cat(p, E_d(a))); paper: d/2 + d/2
+    posterior_head: Literal["per_frame", "pooled"] = "per_frame"   # code: conv-BN-ReLU-FC per frame; paper: 4 FC after the mean
+    decoder_head: Literal["conv", "conv_linear"] = "conv"    # code: one conv d -> P; paper: conv + Linear
+    pos_encoding: Literal["transposed", "standard"] = "transposed"   # code: PositionalEncoding's swapped axes
+    loss_frames: Literal["whole", "generated"] = "whole"     # code: losses on the postprocessed [S_p, T, S_c]; paper: l_t + l_c frames
     canonicalization: Literal["face_front", "zero", "none"] = "face_front"   # Table 1
     backbone: Literal["transformer", "lstm", "gru", "mlp"] = "transformer"   # Table B
     postprocessor: bool = True         # Table B's postprocessor ablation
@@ -110,12 +133,14 @@ class MACVAEConfig(GeneratorConfig):
         if self.backbone == "transformer" and self.d_model % self.heads:
             raise ValueError(f"d_model {self.d_model} is not divisible by heads {self.heads}")
         for f in ("layers", "heads", "ff_size", "batch_size", "epochs", "sample_batch_size",
-                  "max_prev_frames"):
+                  "max_prev_frames", "temporal_kernel"):
             if getattr(self, f) < 1:
                 raise ValueError(f"{f} must be >= 1")
         if self.prevnet_frames != "all" and (isinstance(self.prevnet_frames, bool)
                                              or self.prevnet_frames < 1):
             raise ValueError("prevnet_frames must be >= 1 or 'all'")
+        if self.temporal_kernel % 2 == 0:
+            raise ValueError("temporal_kernel must be odd (the encoder's convolution is centred)")
         if not 0.0 <= self.dropout < 1.0:
             raise ValueError("dropout must lie in [0, 1)")
         if self.lr <= 0 or self.weight_decay < 0 or self.lambda_acc < 0 or self.lambda_kl < 0:
@@ -205,28 +230,51 @@ class MACVAE(Generator):
         t = torch.arange(seq.shape[1], device=seq.device)[None]
         seg = torch.where(t < l_p[:, None], a_p[:, None],
                           torch.where(t < (l_p + l_t)[:, None], net.n_classes, a_c[:, None]))
-        posts = net.encode(seq, seg, l_p + n)
+        posts = net.encode(seq, seg, l_p, l_t, l_c)
         priors = net.prior(net.prevnet_input(seq, l_p, a_c), a_c)
         zs = [mu + torch.exp(0.5 * lv) * torch.randn_like(mu) for mu, lv in posts]
-        out = net.postprocess(seq, l_p, net.decode(zs, l_t, l_c), n)
-        target = hold_frames(seq, l_p, n, T)
-        target_j = hold_frames(joints, l_p, n, T)
-        valid = length_mask(n, T)
+        raw = net.decode(zs, l_t, l_c)
+        if cfg.loss_frames == "whole":       # code: the postprocessed [S_p, T̂, Ŝ_c] is scored
+            start, m = torch.zeros_like(l_p), l_p + n
+            out = net.postprocess_whole(seq, l_p, raw, n)
+        else:                                # paper: the l_t + l_c generated frames
+            start, m = l_p, n
+            out = net.postprocess(seq, l_p, raw, n)
+        W = out.shape[1]
+        target = hold_frames(seq, start, m, W)
+        target_j = hold_frames(joints, start, m, W)
+        valid = length_mask(m, W)
         rec_p = F.l1_loss(out[valid], target[valid])
         safe = torch.where(valid[..., None], out, target)    # padded frames: valid rotations
         pj = pose_joints(self.skeleton, safe)
         rec_v = F.l1_loss(pj[valid], target_j[valid])
-        acc_ok = valid[:, 2:]
-        if bool(acc_ok.any()):
-            acc = pj[:, 2:] - 2 * pj[:, 1:-1] + pj[:, :-2]
-            acc_t = target_j[:, 2:] - 2 * target_j[:, 1:-1] + target_j[:, :-2]
-            rec_acc = F.l1_loss(acc[acc_ok], acc_t[acc_ok])
-        else:
-            rec_acc = out.new_zeros(())
+        rec_acc = self.acc_term(pj, target_j, joints, l_p, m,
+                                prefix=cfg.loss_frames != "whole")
         kl = sum(kl_gaussians(mq, lq, mp, lp).mean() for (mq, lq), (mp, lp) in zip(posts, priors))
         loss = rec_v + rec_p + cfg.lambda_acc * rec_acc + cfg.lambda_kl * kl
         return {"loss": loss, "rec_v": rec_v.detach(), "rec_p": rec_p.detach(),
                 "rec_acc": rec_acc.detach(), "kl": kl.detach()}
+
+    def acc_term(self, pj, target_j, joints, l_p, n, prefix: bool = True) -> torch.Tensor:
+        """``L_acc`` (module docstring, ``acc_loss``) of generated joints ``pj`` (B, T, J, 3)
+        with ``n`` valid frames, against ``target_j`` (``"l1_target"``) or alone
+        (``"squared_output"``; with ``prefix`` after S_p's last two frames of ``joints``
+        (B, L, J, 3), when ``pj`` starts after S_p)."""
+        T = pj.shape[1]
+        if self.config.acc_loss == "squared_output":
+            if prefix:
+                pre = take_frames(joints, l_p - 2, 2).to(pj.dtype)   # index < 0 clamps to 0
+                x, ok = torch.cat([pre, pj], dim=1), length_mask(n + 2, T + 2)[:, 2:]
+            else:
+                x, ok = pj, length_mask(n, T)[:, 2:]
+            acc = x[:, 2:] - 2 * x[:, 1:-1] + x[:, :-2]
+            return (acc[ok] ** 2).mean() if bool(ok.any()) else pj.new_zeros(())
+        ok = length_mask(n, T)[:, 2:]
+        if not bool(ok.any()):
+            return pj.new_zeros(())
+        acc = pj[:, 2:] - 2 * pj[:, 1:-1] + pj[:, :-2]
+        acc_t = target_j[:, 2:] - 2 * target_j[:, 1:-1] + target_j[:, :-2]
+        return F.l1_loss(acc[ok], acc_t[ok])
 
     def _optimizer(self):
         cfg = self.config

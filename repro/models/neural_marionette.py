@@ -9,14 +9,21 @@ Table 1's MarioNet; :meth:`NeuralMarionette.fit` does the same in-process).
   of the last initial pose, in the item's normalised frame) is replaced at decoder step 0 by its
   least-squares projection ``f0* = Φ*·F̃`` onto the span of the ``N = ss_neighbours`` nearest
   (L2, embedding space) training BOP embeddings ``F̃`` of the item's current tag, then
-  L2-normalised (``ss_l2_normalize``; ``ss_norm = "unit"``: ``f0*/‖f0*‖``, the literal
-  reading, or ``"match"``: rescaled to ``‖f0‖``).  The condition encoder still sees the real
-  initial motion.  The candidate set ("shadow bank") is the training items' BOPs, given by
+  L2-normalised (``ss_l2_normalize``) onto a sphere whose radius ``ss_norm`` reads: ``"unit"``
+  (``f0*/‖f0*‖``, the literal "L2-normalization", the default), ``"neighbours"`` (the
+  *embedding-norm* reading: the mean norm of the ``N`` retrieved training embeddings ``F̃``,
+  the "meaningful region" §4.3.2 projects towards) or ``"match"`` (``‖f0‖``, the drifting
+  embedding's own norm).  The condition encoder still sees the real initial motion.  The
+  candidate set ("shadow bank") is the training items' BOPs, given by
   :meth:`NeuralMarionette.set_shadow_bank`; it is not saved with the weights.
 - **Action Revision (AR)**: every item is generated plainly; ``classify(generated)`` (passed in
   by the protocol: the paper's ``F_c``) says which are recognised as their tag; exactly the
   others are regenerated **once** with Shadow Start, with noise from
-  ``derive_seed(seed, "revision")``; no second check.
+  ``derive_seed(seed, "revision")``; no second check.  Which classifier ``F_c`` is, is the
+  protocol's to build; ``revision_classifier`` (an inference field, so a table row can choose
+  it without a training of its own) asks the ``ss_ar`` protocol for the scoring network
+  (``"evaluator"``) or an independent classifier (``"independent"``); unset, the protocol's
+  parameter decides.
 
 ``shadow_start``: ``"never"`` (plain MarioNet, bitwise), ``"always"`` (MarioNet+SS) or
 ``"on_revision"`` (with ``action_revision``: NEURAL MARIONETTE, or NEURAL MARIONETTE* without
@@ -50,7 +57,12 @@ class NeuralMarionetteConfig(MarioNetConfig):
     action_revision: bool = True
     ss_l2_normalize: bool = True       # NEURAL MARIONETTE* (Table 5) = False
     ss_neighbours: int = 16            # N of Eq. 6; the paper leaves it open (a method setting)
-    ss_norm: Literal["unit", "match"] = "unit"  # L2 step: f0*/‖f0*‖, or rescaled to ‖f0‖
+    # L2 step: radius 1 (the literal reading), the mean norm of the N retrieved training
+    # embeddings F̃ ("neighbours": the embedding-norm reading) or ‖f0‖ ("match")
+    ss_norm: Literal["unit", "neighbours", "match"] = "unit"
+    # F_c of Action Revision (§4.3.2): the scoring network or an independent classifier, built
+    # by the ss_ar protocol (None: the protocol's ``revision_classifier``); AR rows only
+    revision_classifier: Literal["evaluator", "independent"] | None = None
 
     @model_validator(mode="after")
     def _check_schemes(self):
@@ -63,6 +75,9 @@ class NeuralMarionetteConfig(MarioNetConfig):
                              "Start is only triggered by a revision)")
         if self.ss_neighbours < 1:
             raise ValueError(f"ss_neighbours must be >= 1, got {self.ss_neighbours}")
+        if self.revision_classifier is not None and not self.action_revision:
+            raise ValueError(f"revision_classifier={self.revision_classifier!r} needs "
+                             "action_revision=True (F_c only decides revisions)")
         return self
 
 
@@ -71,7 +86,7 @@ class NeuralMarionetteConfig(MarioNetConfig):
 INFERENCE_FIELDS: frozenset[str] = frozenset(NeuralMarionetteConfig.model_fields) - frozenset(
     MarioNetConfig.model_fields)
 assert INFERENCE_FIELDS == {"shadow_start", "action_revision", "ss_l2_normalize",
-                            "ss_neighbours", "ss_norm"}
+                            "ss_neighbours", "ss_norm", "revision_classifier"}
 
 
 @dataclass(frozen=True, eq=False)
@@ -224,8 +239,9 @@ class NeuralMarionette(MarioNet):
         ``f0 = FC(P_0)``; ``F̃`` = the ``min(N, M_tag)`` bank embeddings of the item's current
         tag nearest to ``f0`` (L2; ties → lowest bank index); ``Φ* = argmin ‖f0 − Φ·F̃‖²``
         (float64 SVD least squares, rank-deficient safe: the minimum-norm solution),
-        ``f0* = Φ*·F̃``; then ``f0*/‖f0*‖`` (``ss_norm="unit"``) or ``f0*·‖f0‖/‖f0*‖``
-        (``"match"``) when ``ss_l2_normalize`` (a zero ``f0*`` stays zero)."""
+        ``f0* = Φ*·F̃``; then, when ``ss_l2_normalize``, ``f0*·r/‖f0*‖`` with the radius
+        ``r`` = 1 (``ss_norm="unit"``), ``mean_i ‖f̃^i‖`` over the rows of ``F̃``
+        (``"neighbours"``) or ``‖f0‖`` (``"match"``); a zero ``f0*`` stays zero."""
         cfg = self.config
         self._require_bank()
         f0 = self.bop_embeddings(cond_items)
@@ -252,10 +268,19 @@ class NeuralMarionette(MarioNet):
             if cfg.ss_l2_normalize:
                 norm = proj.norm()
                 if float(norm) > 0.0:
-                    scale = 1.0 if cfg.ss_norm == "unit" else f.norm()
-                    proj = proj / norm * scale
+                    proj = proj / norm * self._ss_radius(f, Ft)
             out[i] = proj.to(out.dtype)
         return out
+
+    def _ss_radius(self, f0: torch.Tensor, Ft: torch.Tensor):
+        """The radius of the L2 step's sphere (``ss_norm``; §4.3.2 "project pose to a compact
+        hyper-sphere space"): 1, the mean norm of the retrieved training embeddings ``F̃`` (k, d)
+        or the norm of ``f0``."""
+        if self.config.ss_norm == "unit":
+            return 1.0
+        if self.config.ss_norm == "neighbours":
+            return Ft.norm(dim=1).mean()
+        return f0.norm()
 
     # -- sampling ------------------------------------------------------------------------------
 

@@ -79,6 +79,9 @@ class TableView:
     footer: list[str] = field(default_factory=list)
     standin: str | None = None  # the stand-in data set's name when it is not the paper's
     interval: str = "none"
+    # what each multi-action test set holds (issue 26; None: the table draws none, or has not
+    # run): {set: {unseen_share, median_support, class_share_by_position, ...}}
+    test_sets: dict | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -23,11 +23,11 @@ from __future__ import annotations
 
 import abc
 from pathlib import Path
-from typing import Any, ClassVar, Literal, Mapping
+from typing import Any, ClassVar, Mapping
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict
 
-from repro.errors import ConfigError
+from repro.config_errors import resolve_config
 from repro.keys import content_key
 from repro.seeding import derive_seed
 
@@ -49,50 +49,7 @@ class ProtocolParams(BaseModel):
     @classmethod
     def resolve(cls, params: "ProtocolParams | Mapping[str, Any] | None", *, where: str):
         """``params`` validated over the defaults; a ConfigError names the first bad field."""
-        if params is None:
-            return cls()
-        if isinstance(params, cls):
-            return params
-        if isinstance(params, BaseModel):
-            params = params.model_dump()
-        try:
-            return cls(**dict(params))
-        except ValidationError as e:
-            err = e.errors()[0]
-            field = ".".join(str(p) for p in err.get("loc", ())) or "?"
-            raise ConfigError(f"{where}: parameter {field!r}: {err['msg']}") from None
-
-
-class ItemSourceParams(ProtocolParams):
-    """The fields that say how a protocol's items are made, shared by every protocol that
-    builds them with :class:`repro.data.contexts.ItemSource` (single-action, multi-action,
-    SS/AR): two protocols with equal values train on the same items, so they share models."""
-
-    # fixed by Neural Marionette (§5.1.1, supp. §3)
-    initial_frames: int = Field(6, ge=1, description="frames of initial motion (supp. §3)")
-    fps: float = Field(30.0, gt=0, description="frame rate the data must have (supp. §3)")
-    test_fraction: float = Field(0.2, gt=0, lt=1, description="test share per class (§5.1.1)")
-    test_cap_per_class: int = Field(100, ge=1, description="test clips per class at most (§5.1.1)")
-    # open choices (docs/protocols.md, docs/multi_action.md)
-    split: Literal["marionette", "dataset"] = Field(
-        "marionette", description="Marionette's per-class split, or the data set's stored one")
-    split_seed: int = Field(0, description="seed of the Marionette split")
-    context: Literal["sequence", "same_clip"] = Field(
-        "sequence", description="where P^ini and the next tag come from: the action's composed "
-        "sequence (repro.data.contexts), or the clip itself (the earlier, leaking construction)")
-    compose: dict = Field(default_factory=dict,
-                          description="repro.data.sequences.ComposeConfig overrides")
-    max_frames: int = Field(120, ge=1, description="cap on an action's duration (frames)")
-
-    def item_source(self, where: str):
-        """The :class:`repro.data.contexts.ItemSource` these fields describe."""
-        from repro.data.contexts import ItemSource
-
-        return ItemSource.make(where, context=self.context, fps=self.fps, split=self.split,
-                               split_seed=self.split_seed, test_fraction=self.test_fraction,
-                               test_cap_per_class=self.test_cap_per_class,
-                               n_init=self.initial_frames, max_frames=self.max_frames,
-                               compose=self.compose)
+        return resolve_config(cls, params, f"{where}: parameter")
 
 
 class Protocol(abc.ABC):

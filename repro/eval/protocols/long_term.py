@@ -1,13 +1,16 @@
 """``long_term``: recurrent long-term generation scored per step (MultiAct Fig. 6; paper
 "Comparison with state-of-the-art methods", supp. "Test data for MultiAct"; protocols.md §4.8).
 No released code computes this figure; every choice below is recorded as a parameter.
-Shared pieces: :mod:`repro.eval.protocols.multiact_common`.
+Shared pieces: :mod:`repro.eval.protocols.multiact_common`,
+:mod:`repro.eval.protocols.multiact_conditions`.
 
 **Test plan** (:meth:`LongTerm.test_items`, fixed by ``sequence_seed``, the same for every
 method and replicate): ``sequences`` label sequences of ``steps`` labels, drawn as walks over
 the ``(a_p, a_c)`` label pairs seen in the test split (supp.: "a_1 randomly sampled in A, then
 a_{k+1} from {a | (a_k, a) in test set}"): a_1 uniform, each next label uniform among the
-successors of the current one.  Labels from which no walk of any length continues (sinks, and
+successors of the current one.  ``successors = "train_counts"`` walks instead over every pair
+the *training* sequences join (``SequenceSet.tag_pair_counts(TRAIN) > 0``, the composer's
+matrix read through its public API; a reading, not the paper's).  Labels from which no walk of any length continues (sinks, and
 labels leading only to sinks) are pruned first, so every step is a test pair (our choice; the
 paper does not say what happens at a dead end).
 
@@ -69,14 +72,17 @@ from repro.eval.protocols.multiact_common import (
     MultiActParams,
     MultiActProtocol,
     MultiActSamples,
-    _who,
+)
+from repro.eval.protocols.multiact_conditions import (
     actor_action_items,
     actor_motion,
     actor_sample,
     anchor_frames,
+    at_origin,
     blind,
     check_generated_pairs,
     first_frames,
+    generator_name,
     is_pair_generator,
     method_is_composite,
 )
@@ -95,6 +101,10 @@ class LongTermParams(MultiActParams):
     initial_generator: Literal["actor", "macvae"] = Field(
         "actor", description="step 1: ACTOR (paper) or the method on a real test pair "
         "(released generator)")
+    successors: Literal["test_pairs", "train_counts"] = Field(
+        "test_pairs", description="label pairs the walks follow: the (a_p, a_c) of the test "
+        "pairs (supp. 'Test data for MultiAct') or every pair with a training count "
+        "(SequenceSet.tag_pair_counts(TRAIN) > 0; a reading, not the paper's)")
     sequence_seed: int = Field(0, description="seed of the label sequences and step-1 pairs")
     prev_trim: int = Field(2, ge=0, description="frames dropped from the end of the previous "
                            "action before it conditions the next step (reference: 2)")
@@ -202,6 +212,19 @@ class LongTerm(MultiActProtocol):
     params: LongTermParams
 
     # -- test plan -------------------------------------------------------------------------
+    def walk_pairs(self, clipset) -> list[tuple[int, int]]:
+        """The ``(a, b)`` label pairs the walks follow (``successors``): the test pairs' own
+        (:meth:`repro.data.pairs.PairSource.label_pairs` on TEST; the paper's rule), or every
+        pair the training sequences join at least once (the public
+        :meth:`repro.data.sequences.SequenceSet.tag_pair_counts` ``(TRAIN)``)."""
+        src = self.item_source()
+        if self.params.successors == "test_pairs":
+            return src.label_pairs(clipset, TEST)
+        from repro.data.clipset import TRAIN
+
+        counts = src.sequences(clipset).tag_pair_counts(TRAIN)
+        return [(int(a), int(b)) for a, b in zip(*np.nonzero(counts > 0))]
+
     def test_items(self, clipset) -> LongTermItems:
         """The fixed test plan (module docstring)."""
         p = self.params
@@ -219,7 +242,7 @@ class LongTerm(MultiActProtocol):
         start = None
         if p.initial_generator == "macvae":
             start = np.unique(pairs.labels.numpy())
-        labels = draw_label_sequences(src.label_pairs(clipset, TEST), C, p.sequences, p.steps,
+        labels = draw_label_sequences(self.walk_pairs(clipset), C, p.sequences, p.steps,
                                       p.sequence_seed, start)
         S, N = labels.shape
         l_t, l_c = lT[labels].copy(), lS[labels].copy()
@@ -264,7 +287,7 @@ class LongTerm(MultiActProtocol):
         pairs = items.pairs
         K = self.params.actor_initial_frames
         pairgen = is_pair_generator(generator)
-        who = f"generator {_who(generator)}"
+        who = f"generator {generator_name(generator)}"
         # step 1
         seed1 = derive_seed(s0, "step", 1)
         a1 = items.labels[:, 0]
@@ -281,7 +304,9 @@ class LongTerm(MultiActProtocol):
                     generator, a1, items.l_c[:, 0], place, items.label_names, n_init=K),
                     seed=seed1)
         else:
-            template = anchor_frames(pairs.motion, pairs.l_p).select(torch.zeros(S, dtype=torch.long))
+            # step 1 at the origin facing +Z (ACTOR's own frame; the template's pose only)
+            template = at_origin(anchor_frames(pairs.motion, pairs.l_p).select(
+                torch.zeros(S, dtype=torch.long)))
             act = actor_motion(generator, models, a1, items.l_c[:, 0], template,
                                items.label_names, seed=seed1, n_init=K)
         act = gather_frames(act, torch.zeros(S, dtype=torch.long), items.l_c[:, 0])

@@ -58,11 +58,16 @@ import torch
 from pydantic import Field
 
 from repro.data.clipset import TEST, TRAIN
-from repro.data.contexts import ItemSource, _cached
+from repro.data.contexts import cached
 from repro.errors import ConfigError, DataError
 from repro.eval.memorisation import HARNESS_METRICS
 from repro.eval.protocols import register
-from repro.eval.protocols.base import ItemSourceParams, Protocol
+from repro.eval.protocols.marionette_common import (
+    MarionetteParams,
+    MarionetteProtocol,
+    read_samples,
+    write_samples,
+)
 from repro.keys import content_key
 from repro.models.items import ActionItems, GeneratedItems, condition_items
 from repro.motion.motion import Motion
@@ -73,8 +78,9 @@ METRICS = ("acc", "fid", "pose_gap", "vel_gap", "action_qr", "motion_qr", *HARNE
 REAL_METRICS = ("acc", "fid", "action_qr", "motion_qr", "nn_train_feat", "nn_train_joint")
 
 
-class MultiActionParams(ItemSourceParams):
-    """Parameters of :class:`MultiAction` (frames, fps; the paper's values first)."""
+class MultiActionParams(MarionetteParams):
+    """Parameters of :class:`MultiAction` (frames, fps; the paper's values first; the
+    item-source and shared scoring fields come from :class:`MarionetteParams`)."""
 
     # fixed by the paper (§5.2.1, supp. §4.2)
     candidate_confidence: float = Field(0.5, ge=0, le=1,
@@ -86,22 +92,16 @@ class MultiActionParams(ItemSourceParams):
     sufficient_top_k: int = Field(4, ge=1, description="top connected tags of the sufficient set")
     pipeline: Literal["pure_generative", "neural_marionette"] = "pure_generative"
     qr_over_prefix: bool = Field(True, description="per-index QR over the first x actions")
-    replicates: int | None = Field(None, ge=1, description="read by the engine (scale profile)")
     # open choices (docs/protocols.md §5; docs/multi_action.md)
     test_set_seed: int = Field(0, description="seed of the test-set construction")
     last_next_tag: Literal["same", "own"] = "same"
     evaluator_heading: Literal["remove", "yaw_augment"] = Field(
         "remove", description="heading-free evaluator (chained actions take any heading)")
-    eval_clip: Literal["centre", "start", "whole"] = "centre"
     fid_reference: Literal["test_positions", "candidates"] = Field(
         "test_positions", description="real features FID compares with: the real actions at the "
         "scored positions of the test set (per index for fid@x; same tag mix as the generated), "
         "or every candidate once")
-    fid_method: Literal["eigh", "scipy"] = "eigh"
     vel_gap_frames: Literal["boundary", "junction"] = "boundary"
-    memorisation: bool = Field(True, description="harness columns beyond the paper "
-                               "(repro.eval.memorisation), over the scored actions")
-    prdc_k: int = Field(5, ge=1, description="k of precision/recall/density/coverage")
 
 
 @dataclass(frozen=True)
@@ -145,7 +145,7 @@ def _gather_frames(x: torch.Tensor, start: torch.Tensor, count: int) -> torch.Te
 
 
 @register
-class MultiAction(Protocol):
+class MultiAction(MarionetteProtocol):
     """Neural Marionette's multi-action protocol (module docstring)."""
 
     id = "multi_action"
@@ -163,28 +163,10 @@ class MultiAction(Protocol):
     def evaluator_heading(self) -> str:
         return self.params.evaluator_heading
 
-    # -- data ------------------------------------------------------------------------------
-    def item_source(self) -> ItemSource:
-        return self.params.item_source(f"protocol {self.id!r}")
-
-    def split_clipset(self, clipset):
-        return self.item_source().split_clipset(clipset)
-
-    def train_items(self, clipset) -> ActionItems:
-        return self.item_source().train_items(clipset)
-
+    # -- data (item_source, split_clipset, train_items: MarionetteProtocol) ------------------
     def test_items(self, clipset) -> ActionItems:
         """Every test action (the candidates are chosen among them by :meth:`test_set`)."""
         return self.item_source().items(clipset, TEST)
-
-    def _encode(self, evaluator, motion: GeneratedItems, seed: int):
-        from repro.eval.protocols.single_action import evaluation_clips
-
-        T = int(motion.lengths.max())
-        joints = motion.joints()[:, :T]
-        j, lens = evaluation_clips(joints, motion.lengths, evaluator.settings.window,
-                                   self.params.eval_clip)
-        return evaluator.encode(j, lens, seed=seed)
 
     def _check_evaluator(self, evaluator, items: ActionItems) -> None:
         if tuple(evaluator.label_names) != tuple(items.label_names):
@@ -218,7 +200,27 @@ class MultiAction(Protocol):
         """The overall or sufficient test set (module docstring), cached per process."""
         key = content_key({"proto": self.describe(), "items": items.key(),
                            "evaluator": evaluator.fingerprint})
-        return _cached(key, lambda: self._build_test_set(clipset, items, evaluator))
+        return cached(key, lambda: self._build_test_set(clipset, items, evaluator))
+
+    def test_set_record(self, clipset, evaluator) -> dict[str, dict]:
+        """What this protocol's test set holds (issue 26; supp. §4.2), for a table's JSON
+        (``test_sets``): ``{test_set: {...}}`` with :func:`repro.data.tag_chains.test_set_stats`
+        of the tags of the test set actually drawn (:meth:`test_set`: the same chains every
+        method is scored on) against the training tag-pair counts the draw used
+        (:meth:`transition_counts`) — ``unseen_share``, ``median_support``,
+        ``class_share_by_position`` (L × C, rows in action order, columns in ``classes``
+        order) — plus the candidates' count, the classes and the test set's key.  Depends on
+        the data set, the protocol's parameters and the evaluator only (no generator), so it is
+        the same for every row and replicate."""
+        from repro.data.tag_chains import chain_labels, test_set_stats
+
+        items = self.test_items(clipset)
+        ts = self.test_set(clipset, items, evaluator)
+        tags = chain_labels(items.labels.numpy(), ts.actions)
+        stats = test_set_stats(tags, self.transition_counts(clipset), items.n_classes)
+        return {self.params.test_set: {
+            **stats, "candidates": int(ts.candidates.size),
+            "classes": [str(c) for c in items.label_names], "test_set_key": ts.key()}}
 
     def _build_test_set(self, clipset, items, evaluator) -> TestSet:
         p = self.params
@@ -228,7 +230,7 @@ class MultiAction(Protocol):
         if cand.size == 0:
             raise DataError(f"no test action reaches the candidate confidence "
                             f"{p.candidate_confidence} (supp. §4.2)")
-        from repro.eval.test_sequences import draw_test_sequences
+        from repro.data.tag_chains import draw_test_sequences
 
         acts, nl = draw_test_sequences(items.labels.numpy(), items.next_labels.numpy(), cand,
                                        self.transition_counts(clipset), items.n_classes, p,
@@ -451,27 +453,24 @@ class MultiAction(Protocol):
 
     # -- keeping samples --------------------------------------------------------------------
     def save_generated(self, generated: MultiActionSamples, path: str | Path) -> Path:
-        """The samples as npz (:mod:`repro.eval.sample_files`) plus ``revised``; ``meta`` adds
-        the sequence shape and the test set's key."""
-        from repro.eval.sample_files import motion_arrays, save_samples
-
-        m = generated.motion
-        meta = {"format": SAVE_FORMAT, "protocol": self.id, "skeleton": m.skeleton.to_dict(),
-                "fps": m.fps, "n_sequences": generated.n_sequences,
-                "n_actions": generated.n_actions, "test_set": generated.test_set_key}
+        """The samples as npz (:func:`repro.eval.protocols.marionette_common.write_samples`)
+        plus ``revised``; ``meta`` adds the sequence shape and the test set's key."""
         rev = generated.revised if generated.revised is not None else \
             torch.zeros(len(generated), dtype=torch.bool)
-        return save_samples(path, meta, {**motion_arrays(generated),
-                                         "revised": rev.cpu().numpy().astype(bool)})
+        return write_samples(path, self.id, SAVE_FORMAT, generated,
+                             meta={"n_sequences": generated.n_sequences,
+                                   "n_actions": generated.n_actions,
+                                   "test_set": generated.test_set_key},
+                             arrays={"revised": rev.cpu().numpy().astype(bool)})
 
     def load_generated(self, path: str | Path) -> MultiActionSamples:
-        from repro.eval.sample_files import load_samples, motion_set
-
-        meta, data, skeleton = load_samples(path, protocol=self.id, fmt=SAVE_FORMAT)
-        g = motion_set(data, meta, skeleton, path)
+        """Read a file :meth:`save_generated` wrote (DataError naming it when it is not one)."""
+        f = read_samples(path, self.id, SAVE_FORMAT)
+        g = f.motion_set()
+        meta = f.meta
         try:
             S, L = int(meta["n_sequences"]), int(meta["n_actions"])
-            revised = torch.from_numpy(data["revised"].astype(bool))
+            revised = torch.from_numpy(f.arrays["revised"].astype(bool))
         except (KeyError, ValueError, TypeError) as e:
             raise DataError(f"malformed samples ({type(e).__name__}: {e})", path) from None
         n = len(g)

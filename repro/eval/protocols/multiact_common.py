@@ -7,10 +7,10 @@ is the training items' description, so every MultiAct protocol with equal item f
 one model.  The per-label test count (``per_label``) is *not* a PairSource field here: it is
 passed to :meth:`PairSource.test_items`, so changing it leaves the trained models valid.
 
-**Blinding** (no leak by construction).  A generator may be conditioned on ``S_p``, the labels
-and the lengths ``l_t``, ``l_c`` only.  :func:`blind` makes the copy every generator gets: the
-frames of ``T`` and ``S_c`` are replaced by ``S_p``'s last frame (and ``segment_index`` /
-``clip_index`` dropped), so no method can read a target, whatever it does.
+**Conditions** (:mod:`repro.eval.protocols.multiact_conditions`): every generator gets the
+:func:`~repro.eval.protocols.multiact_conditions.blind` copy of the items (no leak by
+construction); a generated previous motion is ACTOR's, placed where the real ``S_p`` starts
+(:func:`~repro.eval.protocols.multiact_conditions.actor_motion`).
 
 **The scoring frame.**  MultiAct scores motions canonicalised face-front at their pair's anchor
 (protocols.md §4.1, §4.4): every scored segment (a generated ``Ŝ_c`` or ``T̂`` and every real
@@ -45,13 +45,6 @@ match; ``"auto"`` (default) picks ``"multiact_babel"`` when every label name of 
 one of MultiAct's 53 BABEL labels, else ``"none"`` (on the stand-in's labels no merge group
 applies, so both give exact match there).
 
-**ACTOR in these protocols** (a label-only :class:`~repro.models.items.ActionItems` generator):
-its ``S_c`` comes from ``blind(items).as_action_items()`` (labels ``a_c``, lengths ``l_c``,
-placed at the end of ``S_p``).  A generated previous motion (``prev_motion_source = "actor"``)
-is ACTOR's action for ``a_p`` of length ``l_p``, placed at the origin facing +Z: a composite
-method's own ``actor_motion`` (ACTOR + SSMCT, ACTOR + interpolation always take their previous
-motion from their ACTOR), else the extra model ``"actor"`` (:meth:`extra_models`).
-
 Units: metres, frames at ``fps`` (20); FID in squared feature units, accuracy a fraction.
 """
 
@@ -67,18 +60,28 @@ import numpy as np
 import torch
 from pydantic import Field
 
-from repro.data.pairs import GeneratedPairs, PairItems, gather_frames, last_frames
+from repro.data.pairs import PairItems, gather_frames
 from repro.errors import ConfigError, DataError
 from repro.eval.protocols.base import Protocol, ProtocolParams
+from repro.eval.protocols.multiact_conditions import (
+    actor_motion,
+    actor_sample,
+    anchor_frames,
+    blind,
+    check_generated_pairs,
+    first_frames,
+    generator_name,
+    is_composite,
+    is_pair_generator,
+    method_is_composite,
+    with_prev,
+)
 from repro.keys import content_key
 from repro.motion.motion import Motion
 from repro.seeding import derive_seed
 
 SAVE_FORMAT = 1
 METRIC_BLOCK = ("fid_train", "fid_test", "acc", "acc_top5", "div", "multimod")
-#: method ids of MultiAct's composite baselines (ACTOR + SSMCT, ACTOR + interpolation), used
-#: when their classes are not importable (they are recognised by ``components`` otherwise)
-COMPOSITES = frozenset({"actor_ssmct", "interpolation"})
 
 
 class MultiActParams(ProtocolParams):
@@ -220,45 +223,7 @@ def load_samples(protocol_id: str, path: str | Path) -> MultiActSamples:
 
 
 # ---------------------------------------------------------------------------------------------
-# conditions
-
-
-def blind(items: PairItems) -> PairItems:
-    """``items`` as a generator may see them: ``S_p``, labels and lengths kept; every frame of
-    ``T`` and ``S_c`` replaced by ``S_p``'s last frame; ``segment_index`` and ``clip_index``
-    dropped (module docstring)."""
-    motion = gather_frames(items.motion, torch.zeros_like(items.l_p), items.l_p,
-                           items.motion.n_frames)
-    return PairItems(motion, items.l_p.clone(), items.l_t.clone(), items.l_c.clone(),
-                     items.prev_labels.clone(), items.labels.clone(), items.label_names,
-                     None, items.source)
-
-
-def with_prev(items: PairItems, prev: Motion) -> PairItems:
-    """Blinded ``items`` whose ``S_p`` is ``prev`` (N, ≥ max l_p; ``l_p`` valid frames each),
-    e.g. a generated previous motion."""
-    width = max(items.motion.n_frames, int((items.l_p + items.l_t + items.l_c).max()))
-    motion = gather_frames(prev.to(dtype=items.motion.dtype), torch.zeros_like(items.l_p),
-                           items.l_p, width)
-    return PairItems(motion, items.l_p.clone(), items.l_t.clone(), items.l_c.clone(),
-                     items.prev_labels.clone(), items.labels.clone(), items.label_names,
-                     None, items.source)
-
-
-def anchor_frames(motion: Motion, lengths: torch.Tensor) -> Motion:
-    """(N, 1): the last valid frame of each row (``lengths`` valid frames)."""
-    return last_frames(motion, torch.as_tensor(lengths, dtype=torch.long), 1)
-
-
-def first_frames(motion: Motion) -> Motion:
-    return motion.slice_time(0, 1)
-
-
-def at_origin(frame: Motion) -> Motion:
-    """``frame`` (N, 1) face-front canonicalised at itself: root at the origin, heading 0."""
-    from repro.motion.canon import face_front
-
-    return face_front(frame, anchor=0)[0]
+# the scoring frame
 
 
 def to_scoring_frame(segment: Motion, anchor: Motion) -> Motion:
@@ -271,86 +236,6 @@ def to_scoring_frame(segment: Motion, anchor: Motion) -> Motion:
     return canonicalize_with(segment, params)
 
 
-def is_pair_generator(generator) -> bool:
-    return getattr(generator, "item_kind", None) == "pairs"
-
-
-def is_composite(generator) -> bool:
-    return callable(getattr(generator, "actor_motion", None))
-
-
-def method_is_composite(method_id: str) -> bool:
-    """Whether ``method_id`` is a composite (ACTOR + X) method: its class has ``components``."""
-    try:
-        from repro.models.base import generator_class
-
-        return bool(getattr(generator_class(method_id), "components", None))
-    except Exception:  # noqa: BLE001 - not registered yet: fall back to the known ids
-        return method_id in COMPOSITES
-
-
-def actor_action_items(actor, labels, lengths, anchor: Motion, label_names, *, n_init: int):
-    """ActionItems for a label-only generator: ``labels``, ``lengths``; placed at ``anchor``
-    (N, 1) (its pose repeated ``n_init`` times as the initial motion; placement only)."""
-    from repro.models.items import condition_items
-
-    N = anchor.batch_size
-    init = anchor.replace(root=anchor.root.expand(N, n_init, 3).clone(),
-                          rot6d=anchor.rot6d.expand(N, n_init, *anchor.rot6d.shape[2:]).clone())
-    labels = torch.as_tensor(labels, dtype=torch.long).reshape(N)
-    return condition_items(init, labels, labels, torch.as_tensor(lengths, dtype=torch.long),
-                           label_names)
-
-
-def actor_sample(actor, cond, *, seed: int):
-    """ACTOR's actions for ``cond`` (ActionItems): (Motion world (N, max len), lengths)."""
-    out = actor.sample(cond, seed=seed)
-    m = getattr(out, "motion", out)
-    if m.batch_size != len(cond):
-        raise DataError(f"{_who(actor)} returned {m.batch_size} motions for {len(cond)} items")
-    if m.n_frames < int(cond.lengths.max()):
-        raise DataError(f"{_who(actor)} returned motions shorter than asked")
-    return m, cond.lengths.clone()
-
-
-def actor_motion(generator, models: Mapping[str, Any] | None, labels, lengths, template: Motion,
-                 label_names, *, seed: int, n_init: int) -> Motion:
-    """A generated previous motion: ACTOR's action for ``labels`` / ``lengths`` at the origin
-    (module docstring).  ``template`` (N, 1) supplies only a pose to build the placement from
-    (face-front canonicalised to the origin; ACTOR never reads poses)."""
-    labels = torch.as_tensor(labels, dtype=torch.long)
-    lengths = torch.as_tensor(lengths, dtype=torch.long)
-    if is_composite(generator):
-        m = generator.actor_motion(labels, lengths, seed=seed)
-    else:
-        actor = (models or {}).get("actor")
-        if actor is None and not is_pair_generator(generator):
-            actor = generator
-        if actor is None:
-            raise ConfigError(f"{_who(generator)}: a previous motion from ACTOR needs the extra "
-                              "model 'actor' (protocol.extra_models)")
-        cond = actor_action_items(actor, labels, lengths, at_origin(template), label_names,
-                                  n_init=n_init)
-        m, _ = actor_sample(actor, cond, seed=seed)
-    if m.batch_size != len(labels) or m.n_frames < int(lengths.max()):
-        raise DataError(f"{_who(generator)}: ACTOR motions do not fit the asked lengths")
-    return m
-
-
-def _who(generator) -> str:
-    return repr(getattr(generator, "method_id", type(generator).__name__))
-
-
-def check_generated_pairs(out, l_t, l_c, n: int, who: str) -> GeneratedPairs:
-    if not isinstance(out, GeneratedPairs):
-        raise DataError(f"{who}: expected GeneratedPairs, got {type(out).__name__}")
-    if len(out) != n:
-        raise DataError(f"{who}: {len(out)} samples for {n} conditions")
-    if not (torch.equal(out.l_t.long(), torch.as_tensor(l_t).long())
-            and torch.equal(out.l_c.long(), torch.as_tensor(l_c).long())):
-        raise DataError(f"{who}: generated lengths differ from the asked l_t, l_c")
-    return out
-
 
 # ---------------------------------------------------------------------------------------------
 # the protocol base
@@ -359,10 +244,24 @@ _FEATURE_CACHE: OrderedDict[str, tuple] = OrderedDict()
 _FEATURE_CACHE_SIZE = 16
 
 
+#: the footer line of every MultiAct table: MACVAE's reading switches (the specs' notes too)
+FOOTER_NOTE = (
+    "Readings (docs/multiact.md, 'Paper and released code'): MACVAE rows without a mark run the "
+    "released code's (posterior_pooling = \"per_part\", posterior_head = \"per_frame\", "
+    "encoder_embedding = \"joint\", decoder_causal, transition_pos_enc, pos_encoding = "
+    "\"transposed\", decoder_head = \"conv\", temporal_kernel = 5, acc_loss = "
+    "\"squared_output\", loss_frames = \"whole\"); the row marked '(paper reading)' sets the "
+    "paper's (posterior_pooling = \"global\", posterior_head = \"pooled\", encoder_embedding = "
+    "\"split\", decoder_causal = false, transition_pos_enc = false, pos_encoding = "
+    "\"standard\", decoder_head = \"conv_linear\", acc_loss = \"l1_target\", loss_frames = "
+    "\"generated\"; the paper is silent on the kernel).")
+
+
 class MultiActProtocol(Protocol):
     """Base of MultiAct's protocols (module docstring)."""
 
     Params = MultiActParams
+    footer_note = FOOTER_NOTE
     #: the engine passes extra models and the row's resolved config to :meth:`generate`
     takes_models = True
     #: :meth:`measure` gets the data set (training pairs, fresh test references)
@@ -537,13 +436,13 @@ class MultiActProtocol(Protocol):
         """One replicate's samples for ``items`` (seeded by ``seed``): every generator sees
         :func:`blind` ``(items)`` only; ``S_p`` is the item's or ACTOR's (:meth:`prev_source`);
         the scoring anchor is the last frame of the ``S_p`` used."""
-        who = f"generator {_who(generator)}"
+        who = f"generator {generator_name(generator)}"
         cond = blind(items)
         source = self.prev_source(row_config, generator)
         n = len(cond)
         if source == "actor":
-            prev_anchor = anchor_frames(cond.motion, cond.l_p)
-            prev = actor_motion(generator, models, cond.prev_labels, cond.l_p, prev_anchor,
+            prev_start = first_frames(cond.motion)          # the real S_p's placement
+            prev = actor_motion(generator, models, cond.prev_labels, cond.l_p, prev_start,
                                 cond.label_names, seed=derive_seed(seed, "actor-prev"),
                                 n_init=self.params.actor_initial_frames)
             cond = with_prev(cond, prev)
@@ -591,13 +490,8 @@ __all__ = [
     "MultiActParams",
     "MultiActProtocol",
     "MultiActSamples",
-    "actor_action_items",
-    "actor_motion",
-    "anchor_frames",
-    "blind",
     "load_samples",
     "replace_params",
     "save_samples",
     "to_scoring_frame",
-    "with_prev",
 ]

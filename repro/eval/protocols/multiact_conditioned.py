@@ -1,7 +1,8 @@
 """``multiact_conditioned``: one generated action per test pair, scored on ``Ŝ_c`` (MultiAct
 Tables 1, 2, A, B; paper §5 "Ablation study", "Comparison with state-of-the-art methods";
-protocols.md §4.3-4.6).  Shared pieces (items, blinding, the scoring frame, the recogniser
-input, the metric block, the ACTOR path): :mod:`repro.eval.protocols.multiact_common`.
+protocols.md §4.3-4.6).  Shared pieces: items, the scoring frame, the recogniser input and the
+metric block in :mod:`repro.eval.protocols.multiact_common`; blinding and the ACTOR path in
+:mod:`repro.eval.protocols.multiact_conditions`.
 
 **Test items** (:meth:`MultiActConditioned.test_items`): ``prev_motion_source = "test"``
 (the paper's "unseen previous motions", every table's setting): ``per_label`` test pairs per

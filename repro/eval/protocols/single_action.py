@@ -5,8 +5,9 @@ Items (§5.1.1, supp. §3; :mod:`repro.data.contexts`): the data set gets Marion
 (per class ``min(test_cap_per_class, round(test_fraction·n))`` clips, :func:`marionette_split`)
 and is composed into multi-action sequences split by source clip (:mod:`repro.data.sequences`,
 the ``bandai2-seq`` view); every action of a test sequence yields one item: the initial motion
-(``initial_frames`` = 6 frames before the action in its sequence: the previous action's end and
-the blended transition, never the action's own clip), the tag, the duration, the next tag (the
+(``initial_frames`` = 6 frames before the action in its sequence: the transition, i.e. the
+previous clip's own continuation carried onto the action's first frame, never the action's own
+clip), the tag, the duration, the next tag (the
 label of the following action in the sequence) and the trajectory (ground-plane root path of
 root actions, zeros for in-place ones), in the item's Marionette-normalised frame.
 ``context = "same_clip"`` restores the earlier construction (the clip's own first frames and a
@@ -59,13 +60,19 @@ import torch
 from pydantic import Field
 
 from repro.data.clipset import TEST
+from repro.data.contexts import cached
 from repro.errors import ConfigError, DataError
 from repro.eval.memorisation import HARNESS_METRICS
 from repro.eval.protocols import register
-from repro.eval.protocols.base import ItemSourceParams, Protocol
+from repro.eval.protocols.marionette_common import (
+    MarionetteParams,
+    MarionetteProtocol,
+    read_samples,
+    write_samples,
+)
+from repro.eval.protocols.marionette_common import evaluation_clips  # noqa: F401 (re-exported)
 from repro.keys import content_key
-from repro.data.contexts import ItemSource, _cached
-from repro.models.items import ActionItems, GeneratedItems, ItemsConfig
+from repro.models.items import ActionItems, GeneratedItems
 from repro.seeding import derive_seed, numpy_rng
 
 SAVE_FORMAT = 1
@@ -73,25 +80,23 @@ METRICS = ("fid", "acc", "div", "multimod", "traj_err", "jpe", *HARNESS_METRICS)
 REAL_METRICS = ("fid", "acc", "div", "multimod", "nn_train_feat", "nn_train_joint")
 
 
-class SingleActionParams(ItemSourceParams):
+class SingleActionParams(MarionetteParams):
     """Parameters of :class:`SingleAction` (units: frames, fps, metres).
 
     The first group is what Neural Marionette fixes (the specs' ``protocol_params``), the
-    second what the scale profile sets, the third our choices where the paper is silent.
+    second what the scale profile sets, the third our choices where the paper is silent; the
+    item-source and shared scoring fields come from :class:`MarionetteParams`.
     """
 
     # fixed by the paper (§5.1.1, supp. §3)
     trajectory: Literal["input", "none"] = Field(
         "input", description="root actions get the test clip's trajectory as input ('none': zeros)")
-    # the scale profile
+    # the scale profile (and replicates, from MarionetteParams)
     samples_per_class: int | None = Field(
         None, ge=1, description="scored test items per class at most (None: all)")
-    replicates: int | None = Field(None, ge=1, description="read by the engine (scale profile)")
-    # open choices (docs/protocols.md)
+    # open choices (docs/protocols.md; eval_clip, fid_method, memorisation, prdc_k: the shared
+    # MarionetteParams)
     selection_seed: int = Field(0, description="seed of the samples_per_class choice")
-    eval_clip: Literal["centre", "start", "whole"] = Field(
-        "centre", description="what the evaluator sees of an action: its centred or first "
-        "window of the evaluator's length, or the whole action")
     fid_reference: Literal["test_items", "train_items"] = Field(
         "test_items", description="real features FID compares with")
     div_pairs: int = Field(200, ge=1, description="K of Div (§5.1.2; A2M's 200)")
@@ -102,12 +107,6 @@ class SingleActionParams(ItemSourceParams):
         "root_actions", description="items Δ_Traj averages over (in-place ones have no trajectory)")
     jpe_mode: Literal["mean", "sampled", "teacher_forced"] = Field(
         "mean", description="the generation Δ_JPE compares with the real action")
-    fid_method: Literal["eigh", "scipy"] = Field("eigh", description="repro.metrics.fid method")
-    memorisation: bool = Field(True, description="harness columns beyond the paper: nearest-"
-                               "training distances, precision/recall/density/coverage "
-                               "(repro.eval.memorisation)")
-    prdc_k: int = Field(5, ge=1, description="k of precision/recall/density/coverage "
-                        "(Naeem et al. 2020's 5)")
     real_resample: Literal["bootstrap", "none"] = Field(
         "bootstrap", description="Real row replicate: a per-tag bootstrap resample of the real "
         "test actions, or those actions themselves (only the pair draws vary)")
@@ -126,26 +125,6 @@ class SingleActionSamples(GeneratedItems):
 # helpers
 
 
-def evaluation_clips(joints, lengths, window: int, mode: str) -> tuple[np.ndarray, np.ndarray]:
-    """What the evaluator sees of each action: joints (N, W, J, 3) and valid lengths (N,).
-
-    ``mode``: ``"centre"`` (frames ``s .. s+W−1`` with ``s = (L − W) // 2``), ``"start"``
-    (``s = 0``), both padded by repeating the last valid frame when ``L < W``; ``"whole"``
-    (the padded action as it is).  Metres in, metres out.
-    """
-    j = joints.detach().cpu().numpy() if isinstance(joints, torch.Tensor) else np.asarray(joints)
-    lens = lengths.detach().cpu().numpy() if isinstance(lengths, torch.Tensor) else np.asarray(lengths)
-    lens = lens.astype(np.int64).reshape(-1)
-    if mode == "whole":
-        return j, lens
-    if mode not in ("centre", "start"):
-        raise ConfigError(f"eval_clip must be 'centre', 'start' or 'whole', got {mode!r}")
-    start = np.maximum(lens - window, 0) // 2 if mode == "centre" else np.zeros_like(lens)
-    idx = np.minimum(start[:, None] + np.arange(window)[None, :], (lens - 1)[:, None])
-    out = np.take_along_axis(j, idx[:, :, None, None], axis=1)
-    return out, np.minimum(lens, window)
-
-
 def _cap(x: torch.Tensor, T: int) -> torch.Tensor:
     return x[:, :T]
 
@@ -154,7 +133,7 @@ def _cap(x: torch.Tensor, T: int) -> torch.Tensor:
 
 
 @register
-class SingleAction(Protocol):
+class SingleAction(MarionetteProtocol):
     """Neural Marionette's single-action protocol (module docstring)."""
 
     id = "single_action"
@@ -167,23 +146,7 @@ class SingleAction(Protocol):
 
     params: SingleActionParams
 
-    # -- data ------------------------------------------------------------------------------
-    def item_source(self) -> ItemSource:
-        """How items are made (shared with the multi-action protocols and the training step)."""
-        return self.params.item_source(f"protocol {self.id!r}")
-
-    def split_clipset(self, clipset):
-        """``clipset`` with the protocol's train/test split (train the evaluator on this one
-        too, so that no scored test clip was seen by the recogniser)."""
-        return self.item_source().split_clipset(clipset)
-
-    def items_config(self) -> ItemsConfig:
-        return self.item_source().items_config()
-
-    def train_items(self, clipset) -> ActionItems:
-        """One item per training action (module docstring)."""
-        return self.item_source().train_items(clipset)
-
+    # -- data (item_source, split_clipset, train_items: MarionetteProtocol) ------------------
     def test_items(self, clipset) -> ActionItems:
         """The scored items: one per test action, at most ``samples_per_class`` per class."""
         p = self.params
@@ -200,7 +163,7 @@ class SingleAction(Protocol):
                                 f"no item of {', '.join(missing)} (multimodality needs every tag)")
             return self._select(items)
 
-        return _cached(key, build)
+        return cached(key, build)
 
     def _select(self, items: ActionItems) -> ActionItems:
         cap = self.params.samples_per_class
@@ -276,13 +239,6 @@ class SingleAction(Protocol):
         if tuple(evaluator.label_names) != tuple(items.label_names):
             raise DataError("the evaluator's classes differ from the items' tags "
                             f"({', '.join(evaluator.label_names)} vs {', '.join(items.label_names)})")
-
-    def _encode(self, evaluator, motion: GeneratedItems, seed: int):
-        T = int(motion.lengths.max())
-        joints = _cap(motion.joints(), T)
-        j, lens = evaluation_clips(joints, motion.lengths, evaluator.settings.window,
-                                   self.params.eval_clip)
-        return evaluator.encode(j, lens, seed=seed)
 
     def _feature_metrics(self, feats, logits, labels, n_classes: int, seed: int,
                          reference) -> dict[str, float]:
@@ -437,25 +393,18 @@ class SingleAction(Protocol):
     # -- keeping samples --------------------------------------------------------------------
     def save_generated(self, generated: GeneratedItems, path: str | Path) -> Path:
         """Write ``generated`` (and its Δ_JPE pass as ``ref_*``) to the npz file ``path``,
-        atomically (:mod:`repro.eval.sample_files`; ``meta`` adds ``jpe_mode``)."""
-        from repro.eval.sample_files import motion_arrays, save_samples
-
-        m = generated.motion
+        atomically (:func:`repro.eval.protocols.marionette_common.write_samples`; ``meta``
+        adds ``jpe_mode`` and ``has_reference``)."""
         ref = getattr(generated, "reference", None)
-        meta = {"format": SAVE_FORMAT, "protocol": self.id, "skeleton": m.skeleton.to_dict(),
-                "fps": m.fps, "jpe_mode": getattr(generated, "jpe_mode", "sampled"),
-                "has_reference": ref is not None}
-        arrays = motion_arrays(generated)
-        if ref is not None:
-            arrays.update(motion_arrays(ref, "ref_"))
-        return save_samples(path, meta, arrays)
+        return write_samples(path, self.id, SAVE_FORMAT, generated,
+                             meta={"jpe_mode": getattr(generated, "jpe_mode", "sampled"),
+                                   "has_reference": ref is not None},
+                             sets={"ref_": ref} if ref is not None else None)
 
     def load_generated(self, path: str | Path) -> SingleActionSamples:
         """Read a file written by :meth:`save_generated` (DataError naming it when it is not one)."""
-        from repro.eval.sample_files import load_samples, motion_set
-
-        meta, data, skeleton = load_samples(path, protocol=self.id, fmt=SAVE_FORMAT)
-        main = motion_set(data, meta, skeleton, path)
-        ref = motion_set(data, meta, skeleton, path, "ref_") if meta.get("has_reference") else None
+        f = read_samples(path, self.id, SAVE_FORMAT)
+        main = f.motion_set()
+        ref = f.motion_set("ref_") if f.meta.get("has_reference") else None
         return SingleActionSamples(main.motion, main.lengths, main.labels, reference=ref,
-                                   jpe_mode=str(meta.get("jpe_mode", "sampled")))
+                                   jpe_mode=str(f.meta.get("jpe_mode", "sampled")))

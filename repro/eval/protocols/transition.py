@@ -1,6 +1,7 @@
 """``transition``: FID of generated transitions (MultiAct Table 3; paper "Comparison with
 state-of-the-art methods (Transition)", supp. "Evaluation metrics"; protocols.md §4.7).
-Shared pieces: :mod:`repro.eval.protocols.multiact_common`.
+Shared pieces: :mod:`repro.eval.protocols.multiact_common`,
+:mod:`repro.eval.protocols.multiact_conditions`.
 
 **Items**: ``per_label`` test pairs per ``S_c`` label, as ``multiact_conditioned``'s unseen set.
 
@@ -9,10 +10,13 @@ Shared pieces: :mod:`repro.eval.protocols.multiact_common`.
 - MACVAE, ``prev_motion_source = "test"`` ("Ours (prev. motion from testset)"): the real test
   ``S_p``; the generator gets the blinded pair and returns ``[T̂, Ŝ_c]``;
 - MACVAE, ``prev_motion_source = "actor"`` ("prev. motion from ACTOR"): ``S_p`` = ACTOR's action
-  for ``a_p`` of length ``l_p`` (the extra model ``"actor"``), then MACVAE's ``step``;
+  for ``a_p`` of length ``l_p`` (the extra model ``"actor"``), placed where the real ``S_p``
+  starts in the world (:func:`~repro.eval.protocols.multiact_conditions.place_at`), then MACVAE's
+  ``step``;
 - ACTOR + SSMCT (``align`` in the method config) and ACTOR + interpolation: ``S_p`` = the
-  composite's own ``actor_motion(a_p, l_p)``, then its ``step`` (ACTOR's ``Ŝ_c`` joined by the
-  in-betweener).
+  composite's own ``actor_motion(a_p, l_p)`` placed the same way, then its ``step`` (ACTOR's
+  ``Ŝ_c`` joined by the in-betweener; "w. o. align" leaves ``Ŝ_c`` at the origin facing +Z, so
+  ``S_p`` may end anywhere, facing any way: the paper's "seeing the opposite direction").
 
 Lengths ``l_t``, ``l_c`` are the test pair's (the generated transition is as long as the real
 one, §4.7).  A label-only method (ACTOR alone) makes no transition and is refused.
@@ -68,7 +72,7 @@ class Transition(MultiActProtocol):
     Params = TransitionParams
     metrics = METRICS
     real_metrics = METRICS
-    version = 1
+    version = 2                 # 2: a generated S_p is placed where the real S_p starts (issue 26)
 
     params: TransitionParams
 

@@ -1,4 +1,4 @@
-"""The test sequences of Neural Marionette's multi-action protocol (supp. §4.2): which test
+"""Tag chains of Neural Marionette's multi-action test sets (supp. §4.2): which test
 action sits at each position of each test sequence, and the next tag it is conditioned on.
 
 Each sequence starts from an action candidate (a seeded choice of ``sequences`` of them, or
@@ -58,3 +58,38 @@ def draw_test_sequences(labels: np.ndarray, own_next: np.ndarray, cand: np.ndarr
     nl[:, :-1] = labels[acts[:, 1:]]
     nl[:, -1] = labels[acts[:, -1]] if p.last_next_tag == "same" else own_next[acts[:, -1]]
     return acts, nl
+
+
+def chain_labels(labels: np.ndarray, acts: np.ndarray) -> np.ndarray:
+    """Tags (S, L) of the actions ``acts`` (positions into ``labels``)."""
+    return np.asarray(labels, np.int64)[np.asarray(acts, np.int64)]
+
+
+def test_set_stats(tags: np.ndarray, counts: np.ndarray, C: int) -> dict:
+    """What a test set holds (issue 26; supp. §4.2): over the tag chains ``tags`` (S, L) and
+    the training tag-pair ``counts`` (C, C):
+
+    - ``unseen_share``: share of the chains' transitions (tag i → tag i+1) whose training
+      count is 0;
+    - ``median_support``: median training count of those transitions;
+    - ``class_share_by_position``: (L, C) share of the chains whose action at position x has
+      each class (rows sum to 1);
+    - ``self_share``: share of the transitions that repeat the tag (a composer that made every
+      tag its own favourite successor would show here).
+    """
+    tags = np.asarray(tags, np.int64)
+    counts = np.asarray(counts, np.int64)
+    if tags.ndim != 2 or tags.shape[0] == 0:
+        raise ValueError("tags must be a non-empty (S, L) array")
+    S, L = tags.shape
+    support = counts[tags[:, :-1], tags[:, 1:]].reshape(-1)
+    repeat = (tags[:, :-1] == tags[:, 1:]).reshape(-1)
+    share = np.stack([np.bincount(tags[:, x], minlength=C)[:C] / S for x in range(L)])
+    return {
+        "chains": int(S), "length": int(L),
+        "unseen_share": round(float((support == 0).mean()), 4) if support.size else None,
+        "median_support": float(np.median(support)) if support.size else None,
+        "self_share": round(float(repeat.mean()), 4) if repeat.size else None,
+        "class_share_by_position": np.round(share, 4).tolist(),
+    }
+
