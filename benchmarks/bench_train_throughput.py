@@ -12,8 +12,10 @@ alike), ``--repeats`` times each:
 
 - ``before``: the training paths before issue 17, taken from git history at :data:`BEFORE`
   (``benchmarks/_before.py``) and swapped in for the library's by :func:`before_paths`: the
-  loop converting every logged scalar after every step, Action2Motion's per-frame condition,
-  ODMO's per-frame teacher-forcing read;
+  loop converting every logged scalar after every step and Action2Motion's per-frame condition
+  (ODMO's per-frame teacher-forcing read was swapped in too until issue 27 rebuilt ODMO's motion
+  generator to the released code's shapes: the old decoder's ``forward`` no longer fits the
+  network, so ODMO's before/after now differ by the loop only);
 - ``after``: the library as it is.
 
 Printed per method: the batch unit (items; MANN: frame pairs; ODMO: window pairs; DLow-Gen:
@@ -133,19 +135,16 @@ class Capped:
 def before_paths(commit: str = BEFORE):
     """A context manager within which every training runs the paths that issue 17 changed, as
     they were at ``commit`` (imported from git history, ``benchmarks/_before.py``): the loop
-    (``repro.train.loop.train``, which every ``fit`` looks up when it runs), Action2Motion's
-    step (``A2M.training_step``) and ODMO's motion decoder (``MotionGenerator.forward``).
-    Everything else is today's library.  BeforeUnavailable without that history."""
+    (``repro.train.loop.train``, which every ``fit`` looks up when it runs) and Action2Motion's
+    step (``A2M.training_step``); ODMO's old decoder no longer fits its network (issue 27, module
+    docstring).  Everything else is today's library.  BeforeUnavailable without that history."""
     from repro.models.a2m import A2M
-    from repro.models.odmo_nets import MotionGenerator
     from repro.train import loop
 
     old_loop = import_before(commit, "repro/train/loop.py")
     old_a2m = import_before(commit, "repro/models/a2m.py")
-    old_nets = import_before(commit, "repro/models/odmo_nets.py")
     return swapped((loop, "train", old_loop.train),
-                   (A2M, "training_step", vars(old_a2m.A2M)["training_step"]),
-                   (MotionGenerator, "forward", vars(old_nets.MotionGenerator)["forward"]))
+                   (A2M, "training_step", vars(old_a2m.A2M)["training_step"]))
 
 
 def run_path(path: str, method: str, cfg: dict, clips, train_items, steps: int):

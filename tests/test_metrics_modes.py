@@ -96,3 +96,76 @@ def test_errors():
         select_k(rng.normal(size=(30, 2)), rule="elbow")
     with pytest.raises(DataError, match="motions but"):
         mode_homogeneity(rng.normal(size=(10, 4)), rng.normal(size=(9, 2)), np.zeros(10, int))
+
+
+# -- the small-component threshold scales with the codes per class (issue 27) ---------------
+
+def _seven_modes(rng, n=60, d=20, sep=6.0):
+    centres = rng.normal(scale=sep, size=(7, d))
+    lab = rng.integers(0, 7, n)
+    return centres[lab] + rng.normal(size=(n, d)), lab
+
+
+def test_a_planted_seven_mode_latent_keeps_its_modes_at_60_codes_per_class():
+    for seed in range(2):
+        codes, lab = _seven_modes(np.random.default_rng(seed))
+        scaled = discover_modes(codes, "code", reference_codes=2560)
+        assert len(scaled.kept) >= 5, seed
+        # the assignment recovers the planted modes
+        from sklearn.metrics import adjusted_rand_score
+        assert adjusted_rand_score(lab, scaled.assignment) > 0.9
+        # the published "<= 10" at 60 codes merges them (what the scaling is for)
+        assert len(discover_modes(codes, "code").kept) <= 2
+
+
+def test_threshold_scale_is_the_published_one_at_the_reference_count():
+    from repro.metrics.modes import RULES, small_scale
+
+    counts = np.array([0, 9, 10, 11, 30])
+    assert RULES["code"].dropped(counts, small_scale(2560, 2560)).tolist() == [1, 1, 1, 0, 0]
+    assert RULES["paper"].dropped(counts, small_scale(410, 410)).tolist() == [1, 1, 0, 0, 0]
+    # 60 codes against 2,560: 10 × 60 / 2560 = 0.23, only empty components go
+    assert RULES["code"].dropped(counts, small_scale(60, 2560)).tolist() == [1, 0, 0, 0, 0]
+    assert RULES["paper"].dropped(counts, small_scale(60, 2560)).tolist() == [1, 0, 0, 0, 0]
+    # 1,280 codes: code rule drops <= 5, paper rule < 5
+    assert RULES["code"].dropped(np.array([4, 5, 6]), small_scale(1280, 2560)).tolist() == [1, 1, 0]
+    assert RULES["paper"].dropped(np.array([4, 5, 6]), small_scale(1280, 2560)).tolist() == [1, 0, 0]
+    assert RULES["discovery"].dropped(counts, 0.5).tolist() == [1, 0, 0, 0, 0]
+    with pytest.raises(DataError, match="reference_codes"):
+        small_scale(60, 0)
+
+
+def test_k_under_each_rule_on_eight_planted_clusters():
+    # 8 overlapping planted clusters in D = 20 whose silhouette rises slowly from K = 3 to 4
+    # (this draw: 0.217, 0.222, 0.299, 0.345, 0.352, 0.313, ...): the paper's rule stops at
+    # the first rise under ~5 % (K = 3), the code's keeps going until the first drop (K = 7)
+    rng = np.random.default_rng(1)
+    centres = rng.normal(scale=2.0, size=(8, 20))
+    codes = centres[np.repeat(np.arange(8), 40)] + rng.normal(size=(320, 20))
+    assert select_k(codes, "paper").k == 3
+    assert select_k(codes, "code").k == 7
+    # well separated, both rules find the 8
+    rng = np.random.default_rng(0)
+    centres = rng.normal(scale=6.0, size=(8, 20))
+    codes = centres[np.repeat(np.arange(8), 40)] + rng.normal(size=(320, 20))
+    assert select_k(codes, "paper").k == 8 and select_k(codes, "code").k == 8
+
+
+def test_threshold_scales_by_the_codes_drawn_not_the_distinct_ones():
+    # the reference's 2,560 codes per class are draws (duplicates included), so n is the draw:
+    # 3 big planted modes of 40 distinct codes and one of 4, every code drawn 10 times.  At
+    # n = reference the threshold is the published 10 and the 4-code mode goes; scaled by the
+    # 124 distinct codes instead (threshold 1) it would stay.
+    rng = np.random.default_rng(3)
+    centres = np.eye(4, 6) * 40.0
+    sizes = (40, 40, 40, 4)
+    distinct = np.concatenate([c + rng.normal(size=(m, 6)) for c, m in zip(centres, sizes)])
+    lab = np.repeat(np.arange(4), sizes)
+    codes, lab = np.repeat(distinct, 10, axis=0), np.repeat(lab, 10)
+    modes = discover_modes(codes, "code", reference_codes=codes.shape[0])
+    small = modes.assignment[lab == 3]
+    assert np.isin(small, modes.assignment[lab != 3]).all()   # dropped: joined a big mode
+    assert modes.counts[list(modes.kept)].min() > 10
+    # scaled by the 124 distinct codes instead (the old reading) nothing would be dropped
+    from repro.metrics.modes import RULES, small_scale
+    assert not RULES["code"].dropped(modes.counts, small_scale(124, codes.shape[0])).any()

@@ -1,4 +1,5 @@
-"""ODMO (repro.models.odmo, odmo_nets): shapes, determinism, save/load, every loss switch
+"""ODMO (repro.models.odmo, odmo_nets): the code's shapes and readings by default, the window
+length the network is built for, determinism, save/load, every loss switch
 removing its term, the contrastive and KL forms against their formulas, the teacher-forcing
 schedule, the 1-NN end point, mode-preserving and conventional sampling on planted banks, and
 a short training lowering the loss.  Windows of the bundled bandai2-mini set (21 joints)."""
@@ -20,7 +21,9 @@ from repro.models.odmo import (ODMO, Bank, ODMOConfig, contrastive_loss, kl_term
 from repro.seeding import numpy_rng
 from model_fixtures import one_torch_thread  # noqa: F401 (autouse fixture)
 
-TINY = {"reduction": "sum", "enc_hidden": 16, "enc_feature": 16, "embed": 32, "hidden": 32, "epochs": 2,
+# the code's shapes (no separate "embed": the embedding widths are "hidden"), built for 20-frame
+# windows; the fitted fixture leaves "window" unset so that fit adopts the items'
+TINY = {"enc_hidden": 16, "enc_feature": 16, "hidden": 32, "window": 20, "epochs": 2,
         "windows_per_epoch": 32, "batch_size": 16, "val_pairs": 16}
 
 
@@ -35,8 +38,9 @@ def make(items, **over) -> ODMO:
 
 @pytest.fixture(scope="module")
 def fitted(items):
-    g = make(items)
+    g = make(items, window=None)
     g.fit(items, seed=3)
+    assert g.config.window == items.window == 20  # adopted from the items, saved with the config
     return g
 
 
@@ -67,7 +71,16 @@ def test_registered_shapes_and_paper_defaults(items, fitted):
     assert vel.shape == (5, 19, 3) and traj.shape == (5, 20, 3) and poses.shape == (5, 20, J, 3)
     assert torch.all(traj[:, 0] == 0)
     torch.testing.assert_close(traj[:, 1:], torch.cumsum(vel, 1))
-    assert net.trajectory.embed[0].in_features == C * 20 + 3
+    assert net.trajectory.expand.in_features == C * 20 + 3
+    assert net.trajectory.expand.out_features == (C * 20 + 3) * 19   # one input per step
+    assert net.motion.dec_embed.in_features == 3 * J + C * 20 + 1    # no trajectory term
+    c = ODMOConfig()
+    assert (c.traj_target, c.reduction, c.classic_mu_prior, c.encoder_head, c.trajectory_input,
+            c.embed, c.enc_feature, c.window) == ("position", "code", False, "code", "code",
+                                                  None, 256, None)
+    untrained = make(items, window=None)
+    with pytest.raises(ConfigError, match="window"):
+        untrained.network
     codes = fitted.latent_codes(x.numpy())
     assert codes.shape == (5, 20) and codes.dtype == np.float64
     np.testing.assert_allclose(codes, mu.detach().double().numpy(), atol=1e-6)
@@ -87,7 +100,10 @@ def test_sample_windows_order_determinism_and_save_load(tmp_path, items, fitted)
     assert not torch.equal(a, fitted.sample_windows([3, 0, 3, 7], 20, **{**kw, "seed": 6}))
     b = fitted.sample_windows([0, 3, 3, 7], 20, **kw)  # same codes per class, scattered back
     assert torch.equal(a[[1, 0, 2, 3]], b)
-    assert fitted.sample_windows([3, 0, 3, 7], 25, **kw).shape[1] == 25
+    with pytest.raises(ConfigError, match="built for windows of 20 frames"):
+        fitted.sample_windows([3, 0, 3, 7], 25, **kw)   # the code's per-frame input expansion
+    rep = make(items, trajectory_input="repeat", window=None)  # harness variant: any length
+    assert rep.sample_windows([3, 0], 25, seed=5, pool=items, n_iter=1).shape[1] == 25
     conv = fitted.sample_windows([3, 0, 3, 7], 20, **kw, sampling="conventional")
     assert conv.shape == a.shape and not torch.equal(conv, a)
     # the config's names of the inference fields, as a protocol passes them
@@ -120,8 +136,8 @@ def test_validation_adds_a_curve_without_changing_the_weights(items, fitted):
     g = make(items)
     hist = g.fit(items, seed=3, val_items=val).history
     assert {"val_loss", "val_mre", "val_kl", "val_contrastive"} <= set(hist[-1])
-    assert torch.equal(g.net.state_dict()["encoder.mu.weight"],
-                       fitted.net.state_dict()["encoder.mu.weight"])
+    assert torch.equal(g.net.state_dict()["encoder.feature.6.weight"],
+                       fitted.net.state_dict()["encoder.feature.6.weight"])
 
 
 def test_each_switch_removes_its_term(items):
@@ -131,26 +147,30 @@ def test_each_switch_removes_its_term(items):
     assert full["loss"] == pytest.approx(sum(v for k, v in full.items() if k != "loss"), rel=1e-5)
     for switch, term in (("contrastive", "contrastive"), ("cons_loss", "cons"),
                          ("traj_loss", "traj")):
-        extra = {"classic_mu_prior": False} if switch == "contrastive" else {}
-        out = step(make(items, **{switch: False}, **extra), batch)
+        out = step(make(items, **{switch: False}), batch)
         assert term not in out and set(full) - set(out) == {term}
         assert out["loss"] == pytest.approx(sum(v for k, v in out.items() if k != "loss"),
                                             rel=1e-5)
         assert out["loss"] == pytest.approx(full["loss"] - full[term], rel=1e-5)
-    # −L_es as "a classic VAE" (supp. §3.1): the standard prior's μᵀμ per window, per pair
-    g = make(items, contrastive=False)
+    # −L_es as the paper's "classic VAE" (supp. §3.1): the standard prior's μᵀμ per window,
+    # per pair (the code's reading, the default, adds nothing: the set difference above)
+    g = make(items, contrastive=False, classic_mu_prior=True)
     vae = step(g, batch)
     assert "contrastive" not in vae and "mu_prior" in vae
-    with torch.no_grad():  # train mode as in the step (BatchNorm on the batch's statistics)
-        mu, _ = g.net.encode(torch.cat([batch["anchor"], batch["partner"]]))
+    with torch.no_grad():  # train mode as in the step: anchors and partners encoded as two
+        # batches (the code's two model calls; BatchNorm statistics per side)
+        mu = torch.cat([g.net.encode(batch["anchor"])[0], g.net.encode(batch["partner"])[0]])
     assert vae["mu_prior"] == pytest.approx(float(2 * (mu ** 2).sum(1).mean()), rel=1e-4)
     both = step(make(items, traj_loss=False, cons_loss=False), batch)
     assert "traj" not in both and "cons" not in both
-    # weights scale their term; "mean" is the MSE (sum / (T·J·3) for the motion term)
+    # weights scale their term; the reductions of the motion term: code = Σ_t mean over J·3,
+    # "sum" = J·3 times it, "mean" = 1/T of it
     w = step(make(items, lambda_mre=2.0), batch)
     assert w["loss"] == pytest.approx(full["loss"] + full["mre"], rel=1e-5)
     m = step(make(items, reduction="mean"), batch)
-    assert m["mre"] == pytest.approx(full["mre"] / (20 * items.n_joints * 3), rel=1e-4)
+    assert m["mre"] == pytest.approx(full["mre"] / 20, rel=1e-4)
+    s = step(make(items, reduction="sum"), batch)
+    assert s["mre"] == pytest.approx(full["mre"] * items.n_joints * 3, rel=1e-4)
 
 
 def test_use_end_false_ignores_the_end_point(items):

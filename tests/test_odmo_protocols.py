@@ -235,13 +235,34 @@ def test_latent_modes_recover_planted_styles(clips, monkeypatch):
         scale=0.1, size=(len(styles), 4))
     out = proto.generate(gen, ctx, seed=0, replicate=0)
     assert np.array_equal(out.styles, styles)
+    assert np.array_equal(out.padded, 20 - b.valid)
     vals = proto.measure(out, ctx, None, seed=0)
-    assert vals["style_nmi"] > 0.8 and vals["style_coverage"] > 80
+    assert set(vals) == {"mode_homogeneity", "style_ami", "style_ari"}
+    assert vals["style_ami"] > 0.8 and vals["style_ari"] > 0.6
     assert proto.real_replicate(clips, ctx, None, seed=0, replicate=0) == {"mode_homogeneity": 0.0}
-    # codes that carry no style information: NMI near 0
+    # codes that carry no style information: AMI and ARI near 0 (chance-corrected)
     gen.latent_codes = lambda joints: np.random.default_rng(2).normal(size=(len(styles), 4))
     noise = proto.measure(proto.generate(gen, ctx, seed=0, replicate=0), ctx, None, seed=0)
-    assert noise["style_nmi"] < vals["style_nmi"] - 0.3
+    assert abs(noise["style_ami"]) < 0.05 and abs(noise["style_ari"]) < 0.05
+
+
+def test_no_same_class_partner_is_its_own_clip(clips):
+    pool = WindowSource(window=20, same_class_p=1.0).train_items(clips)
+    rng = np.random.default_rng(0)
+    anchors = pool.balanced_clips(3000, rng)
+    partners = pool.partner_clips(anchors, rng)
+    assert np.array_equal(clips.labels[anchors], clips.labels[partners])
+    assert not np.any(anchors == partners)
+    a, p = pool.draw_pairs(2000, np.random.default_rng(1))
+    same = a.labels == p.labels
+    assert same.any() and not np.any(a.indices[same] == p.indices[same])
+    # a class with one clip in the pool (a small hold-out): its only clip, another window
+    lab = clips.labels[pool.indices]
+    one = pool.subset(np.concatenate([np.flatnonzero(lab == 0)[:1], np.flatnonzero(lab == 1)]))
+    alone = np.repeat(one.indices[:1], 5)
+    assert np.array_equal(one.partner_clips(alone, np.random.default_rng(0)), alone)
+    other = one.partner_clips(np.repeat(one.indices[1:2], 50), np.random.default_rng(0))
+    assert np.all(clips.labels[other] == 1) and not np.any(other == one.indices[1])
 
 
 def test_window_strips_show_the_same_sample_of_every_row(clips):

@@ -308,9 +308,10 @@ def test_odmo_table3_has_the_style_columns():
     for scale, records in OD_RUNS.items():
         (t3,) = [p for p in records if _run(p)[0]["table"] == "odmo/table3"]
         cells = _run(t3)[1]["cells"]
-        for row in ("odmo", "actor"):
-            assert {"humanact12.style_nmi", "humanact12.style_ari",
-                    "humanact12.style_coverage"} <= set(cells[row]), (scale, row)
+        for row in ("odmo", "actor", "random_codes", "pca_lmp"):  # issue 27: AMI, ARI, calibration
+            assert {"humanact12.style_ami", "humanact12.style_ari",
+                    "humanact12_paper_rule.mode_homogeneity"} <= set(cells[row]), (scale, row)
+            assert not {"humanact12.style_nmi", "humanact12.style_coverage"} & set(cells[row])
 
 
 def test_results_page_prints_the_odmo_records(tmp_path, monkeypatch):
@@ -349,6 +350,28 @@ def test_quick_records_before_issue_26_are_their_values(path):
 
 def test_before_26_history_covers_the_marionette_and_multiact_specs():
     assert {_run(p)[0]["table"] for p in BEFORE_26} == MARIONETTE | MULTIACT
+
+
+BEFORE_27 = {"quick": _records("odmo-quick-before-27"), "medium": _records("odmo-medium-before-27")}
+BEFORE_27_ALL = [(s, p) for s, ps in BEFORE_27.items() for p in ps]
+
+
+@pytest.mark.parametrize("scale, path", BEFORE_27_ALL,
+                         ids=[f"{s}/{p.name}" for s, p in BEFORE_27_ALL])
+def test_odmo_records_before_issue_27_are_their_values(scale, path):
+    """The ODMO records until issue 27 (a model that was neither the paper's nor the released
+    code's: r̂_t fed to the decoder, no time input, one-FC encoder head, a repeated trajectory
+    input, the paper's sums; Table 3 under the sampler's K rule without calibration rows;
+    docs/results.md, "Earlier records"): kept as history, each consistent with its raw values."""
+    rj, summary = _run(path)
+    assert rj["status"] == "FINISHED" and rj["scale"] == scale
+    assert rj["table"] in ODMO
+    _cells_are_their_values(path, summary, len(rj["config"]["seeds"]))
+
+
+def test_before_27_history_covers_the_odmo_specs():
+    for scale, records in BEFORE_27.items():
+        assert {_run(p)[0]["table"] for p in records} == ODMO, scale
 
 
 def test_current_quick_records_were_made_under_the_pin():

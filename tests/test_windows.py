@@ -72,6 +72,17 @@ def test_short_clip_is_padded_with_its_last_frame(clipset):
     assert np.allclose(w.joints[0, 4:], (clip[-1] - clip[0, 0])[None], atol=1e-6)
 
 
+def test_padded_frame_count_per_drawn_window(clipset):
+    from repro.data.odmo_items import padded_frames
+
+    # clips of 12, 10, 4, 30, 11 frames, windows of 10: only the 4-frame clip is padded (6)
+    w = cut_windows(clipset, [0, 1, 2, 3, 4, 2], [2, 0, 0, 17, 1, 0], T)
+    assert padded_frames(w).tolist() == [0, 0, 6, 0, 0, 6]
+    # each padded frame repeats the clip's last real frame
+    n_pad = padded_frames(w)[2]
+    assert np.allclose(w.joints[2, T - n_pad:], w.joints[2, T - n_pad - 1][None], atol=1e-6)
+
+
 def test_epoch_windows_deterministic_and_fresh_each_epoch(clipset):
     idx = np.arange(len(clipset)).repeat(20)
     a = epoch_windows(clipset, idx, T, seed=3, epoch=0)

@@ -6,7 +6,10 @@ joint positions, the first frame's root at the origin, no rotation; every "epoch
 class-balanced draw (ODMO's WeightedRandomSampler, class weight ∝ 1/count) of
 ``windows_per_epoch`` windows with random starts (:mod:`repro.data.windows`).  The contrastive
 encoder trains on *pairs*: the partner has the anchor's class with probability 0.5
-(``same_class_p``), otherwise another class.
+(``same_class_p``), otherwise another class.  A same-class partner is another *clip* of the
+class, never the anchor's own (the reference's pairwise loaders draw it from another sample;
+a class with a single clip in the pool — e.g. a small validation hold-out — pairs the anchor
+with another random window of its own clip, the only same-class choice).
 
 :class:`WindowSource` describes how the pool is made from a prepared clip set (any clip set:
 it only reads ``joints``, ``lengths``, ``labels``, ``styles`` and the data set's stored
@@ -28,6 +31,9 @@ Choices recorded here (docs/odmo.md):
   origin, no rotation (``canon`` = a pure translation), so their samples land in ODMO's frame.
   Their ``initial`` motion is one frame, the window's first (read only by methods that use an
   initial pose; the ODMO rows switch it off).
+- **Padding.**  A clip shorter than the window is padded with its last frame
+  (:mod:`repro.data.windows`); :func:`padded_frames` gives each drawn window's count of such
+  frames (Table 3's style columns leave out windows padded beyond a stated share).
 - ``scale`` multiplies positions (ODMO divides CMU MoCap by 20, a unit change of that data;
   the stand-in is in metres, so 1).  ``y_weight`` is ODMO's per-data-set weight of the
   vertical axis in the trajectory and motion losses (``param_*.py``: 5 HumanAct12/UESTC,
@@ -51,10 +57,16 @@ from repro.errors import ConfigError, DataError
 from repro.keys import content_key
 from repro.seeding import numpy_rng
 
-__all__ = ["WindowSource", "WindowItems", "WINDOWS_VERSION"]
+__all__ = ["WindowSource", "WindowItems", "WINDOWS_VERSION", "padded_frames"]
 
-#: bumped when the construction of windows changes (enters ``describe()``)
-WINDOWS_VERSION = 1
+#: bumped when the construction of windows changes (enters ``describe()``); 2: a same-class
+#: partner is never the anchor's own clip (issue 27)
+WINDOWS_VERSION = 2
+
+
+def padded_frames(batch: WindowBatch) -> np.ndarray:
+    """(N,) int64: frames of each window that repeat its clip's last frame (window − valid)."""
+    return (int(batch.joints.shape[1]) - np.asarray(batch.valid, dtype=np.int64)).astype(np.int64)
 
 
 class WindowSource(BaseModel):
@@ -231,7 +243,9 @@ class WindowItems:
 
     def partner_clips(self, anchors: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """A partner clip per anchor clip row: same class w.p. ``same_class_p``, else another
-        class (``partner`` rule); a class with no other class present pairs with itself."""
+        class (``partner`` rule); a class with no other class present pairs with itself.  A
+        same-class partner is another clip of the class, never the anchor's own, unless the
+        class has no other clip in this pool (module docstring)."""
         anchors = np.asarray(anchors, dtype=np.int64)
         labels = self.clipset.labels
         pool_labels = labels[self.indices]
@@ -241,7 +255,9 @@ class WindowItems:
         for i, a in enumerate(anchors):
             c = labels[a]
             if same[i] or classes.size < 2:
-                pool = self.indices[pool_labels == c]
+                pool = self.indices[(pool_labels == c) & (self.indices != a)]
+                if pool.size == 0:  # the class's only clip in this pool: another window of it
+                    pool = np.array([a], dtype=np.int64)
             elif self.source.partner == "class_uniform":
                 others = classes[classes != c]
                 pool = self.indices[pool_labels == others[rng.integers(0, others.size)]]

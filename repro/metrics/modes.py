@@ -14,6 +14,18 @@ scored with ``silhouette_score`` (Euclidean) of its hard assignment.  Three K-se
 ``"paper"`` (supplement §2.2)
     k = 3..11; K = the first i with S_i > 0.95·S_{i+1}; K = 11 if there is none.  Components
     with < 10 codes are dropped.
+
+**Small-component threshold and the number of codes.**  The "10" of both rules was set for
+the reference's code bank (HumanAct12: 15 × 2,048 windows over 12 classes = 2,560 codes per
+class; UESTC: 8 × 2,048 / 40 = 410).  With ``reference_codes`` given, the threshold is scaled
+by ``n / reference_codes`` (n = the class's codes as drawn, duplicates included, as the
+reference bank counts them; the component counts compared with it are of the distinct codes
+fitted, as in the sampler): the code rule drops components of ``<= 10·n/reference_codes``
+codes, the paper rule those of ``< 10·n/reference_codes``.  At the reference's count it is the
+published 10; at 60 codes per class against 2,560 it drops only empty components (0.23), where
+the unscaled 10 would merge every K >= 7 into one mode.  ``reference_codes=None`` keeps the
+published 10; ODMO's sampler (:func:`repro.models.odmo.mode_preserving_codes`) passes its bank's
+size against the reference's, so it is the published 10 at the paper scale only.
 ``"discovery"`` (ODMO's mode-discovery script ``cluster_multimodal``)
     the code rule's loop with K = k_break - 1, i.e. K = 8 when it never stops; no dropping.
 
@@ -54,13 +66,33 @@ class RuleSpec:
     k_min: int
     k_max: int
     drop_at_most: int | None  # drop components with count <= this (None: drop nothing)
+    small: float | None = None  # the published threshold ("<= 10" code, "< 10" paper)
+    inclusive: bool = True      # True: count <= small is dropped; False: count < small
+
+    def dropped(self, counts: np.ndarray, scale: float = 1.0) -> np.ndarray:
+        """Mask of the components too small to keep, the threshold × ``scale``."""
+        counts = np.asarray(counts)
+        if self.small is None:
+            return counts <= 0
+        t = self.small * float(scale)
+        return (counts <= t) if self.inclusive else (counts < t)
 
 
 RULES: dict[str, RuleSpec] = {
-    "code": RuleSpec(k_min=3, k_max=9, drop_at_most=10),
-    "paper": RuleSpec(k_min=3, k_max=11, drop_at_most=9),  # "< 10"
+    "code": RuleSpec(k_min=3, k_max=9, drop_at_most=10, small=10.0, inclusive=True),
+    "paper": RuleSpec(k_min=3, k_max=11, drop_at_most=9, small=10.0, inclusive=False),  # "< 10"
     "discovery": RuleSpec(k_min=3, k_max=9, drop_at_most=None),
 }
+
+
+def small_scale(n_codes: int, reference_codes: float | None) -> float:
+    """Factor on the small-component threshold (module docstring): ``n / reference_codes``,
+    1 when no reference count is given."""
+    if reference_codes is None:
+        return 1.0
+    if reference_codes < 1:
+        raise DataError(f"mode selection: reference_codes must be >= 1, got {reference_codes}")
+    return float(n_codes) / float(reference_codes)
 
 
 @dataclass(frozen=True)
@@ -174,19 +206,18 @@ class ClassModes:
 
 def discover_modes(codes, rule: Rule = "code", seed: int = 0, unique: bool = True,
                    small_modes: Literal["reassign", "exclude"] = "reassign",
-                   n_init: int = 5) -> ClassModes:
-    """Select K, fit the GMM, drop small components and assign every code (duplicates too)."""
+                   n_init: int = 5, reference_codes: float | None = None) -> ClassModes:
+    """Select K, fit the GMM, drop small components (threshold scaled by ``n /
+    reference_codes``, module docstring) and assign every code (duplicates too)."""
     all_codes = float_array(codes, "codes", ndim=2, min_len=1)
     fit_codes = np.unique(all_codes, axis=0) if unique else all_codes
     selection, (gmm, fit_labels) = _select(fit_codes, rule, seed, n_init)
     spec = _rule(rule)
     counts = np.bincount(fit_labels, minlength=selection.k)
-    if spec.drop_at_most is None:
-        kept = np.flatnonzero(counts > 0)
-    else:
-        kept = np.flatnonzero(counts > spec.drop_at_most)
-        if kept.size == 0:
-            kept = np.array([int(np.argmax(counts))])
+    # reference_codes counts codes drawn (the reference bank, duplicates included): scale by n drawn
+    kept = np.flatnonzero(~spec.dropped(counts, small_scale(all_codes.shape[0], reference_codes)))
+    if kept.size == 0:
+        kept = np.array([int(np.argmax(counts))])
     proba = gmm.predict_proba(all_codes)
     best = np.argmax(proba, axis=1)
     if small_modes == "reassign":
@@ -238,7 +269,7 @@ class ModeHomogeneityResult:
 def mode_homogeneity(motions, codes, labels, rule: Rule = "code", seed: int = 0,
                      n_classes: int | None = None, unique: bool = True,
                      small_modes: Literal["reassign", "exclude"] = "reassign",
-                     n_init: int = 5) -> ModeHomogeneityResult:
+                     n_init: int = 5, reference_codes: int | None = None) -> ModeHomogeneityResult:
     """ODMO Table 3 mode-homogeneity (%) of real sequences ``motions`` (N, T, J, 3) whose
     latent codes are ``codes`` (N, D) and classes ``labels`` (N,); see the module docstring."""
     x = flatten_sequences(motions, "motions")
@@ -255,7 +286,8 @@ def mode_homogeneity(motions, codes, labels, rule: Rule = "code", seed: int = 0,
         if rows.size == 0:
             raise DataError(f"mode-homogeneity: class {cls} has no sequences")
         modes = discover_modes(c[rows], rule=rule, seed=seed, unique=unique,
-                               small_modes=small_modes, n_init=n_init)
+                               small_modes=small_modes, n_init=n_init,
+                               reference_codes=reference_codes)
         total, weighted = mode_apd(x[rows], modes.assignment)
         if total == 0.0:
             raise DataError(f"mode-homogeneity: class {cls} has APD 0 (identical sequences)")

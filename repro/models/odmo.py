@@ -2,33 +2,54 @@
 §2.1-2.3, §3, Table S2; reference-code facts: protocols.md §3.3, §3.5, §3.8, §3.9, §7.
 
 Networks: :mod:`repro.models.odmo_nets` (LMP encoder ``Es_θ``, trajectory generator ``Gr_φ``,
-motion generator ``Gm_ψ``, latent ``D = 20``).  Data: windows of ``T`` frames of absolute joint
-xyz (:class:`~repro.data.odmo_items.WindowItems`, first-frame root at the origin, data-set units).
+motion generator ``Gm_ψ``, latent ``D = 20``), with the released code's layer shapes by default
+(``encoder_head``, ``trajectory_input``, ``embed``: harness variants, Table S2 being silent on
+those widths).  Data: windows of ``T`` frames of absolute joint xyz
+(:class:`~repro.data.odmo_items.WindowItems`, first-frame root at the origin, data-set units).
+**Window length.**  The code's trajectory generator expands its input to one learned input per
+frame, so the network is built for one ``T`` (the code's ``motion_length``): ``window`` (``None``
+= the training items' window length, adopted by :meth:`ODMO.fit` and then part of the saved
+config, so a loaded model rebuilds the same network).  An untrained model with ``window=None``
+has no network yet (under ``trajectory_input="code"``); decoding another number of frames is a
+ConfigError.
+
+Where the paper and the released code disagree the default is the code's reading and the
+paper's is a switch (docs/odmo.md lists every line); the harness's earlier choices that were
+neither stay as named harness variants.
 
 **Losses** (Eq. 1-5; window ``x``, root ``r_t = x_t[0]``, ``z = μ + e^{logvar/2}·ε``, the
 reference's ``rsample + mu``):
 
 - ``L_mre`` (Eq. 3): squared error of the generated poses (all joints, absolute xyz);
-- ``L_r`` (Eq. 2, ``traj_loss``): squared error of the ``T − 1`` predicted velocities against
-  ``r_t − r_{t−1}`` (``r̂_1 = 0`` is built in: Eq. 2's first term ``r_1 − r_0`` is 0);
+- ``L_r`` (``traj_loss``): ``traj_target="position"`` (default, the code: ``to_location`` of the
+  predicted velocities, a leading 0 then the cumulative sum, against the real root positions,
+  ``T`` frames) or ``"velocity"`` (Eq. 2, the paper: the ``T − 1`` predicted velocities against
+  ``r_t − r_{t−1}``; ``r̂_1 = 0`` is built in: Eq. 2's first term ``r_1 − r_0`` is 0);
 - ``L_cons`` (Eq. 4, ``cons_loss``): squared distance of ``Gr``'s ``r̂_t`` to ``Gm``'s root joint
   (not y-weighted).  The reference adds it *into* its trajectory loss, so its "−L_traj" row drops
   both; we keep two switches (−L_traj: both false; −L_cons: ``cons_loss`` false);
 - y weight: the y coordinate's squared error in ``L_mre`` and ``L_r`` is multiplied by
-  ``y_weight`` (not in the paper; the reference's ``y_weights``; ``None`` → ``items.y_weight``);
-- reduction: ``"mean"`` (default; the reference's MSE, averaged over time and coordinates) or
-  ``"sum"`` (the paper's Σ_t ‖·‖², summed over them; the scale profiles' choice);
+  ``y_weight`` (the reference's ``y_weights``; ``None`` → ``items.y_weight``, 5 HumanAct12 /
+  UESTC, 1 MoCap); Eq. 2-3 weight no axis, so the paper's reading is ``y_weight = 1``;
+- decoder time input (``decoder_time``): the code feeds ``(t+1)/T`` to each decoder step
+  (default); §3.2(iii) lists only the previous pose and one-hot ⊗ z (``False``);
+- reduction (:func:`~repro.models.odmo_nets.squared_error`): ``"code"`` (default; the released
+  trainer: per frame the y-weighted squared error averaged over the frame's coordinates, then
+  summed over frames), ``"sum"`` (the paper's Σ_t ‖·‖², summed over frames and coordinates) or
+  ``"mean"`` (averaged over both; a harness variant, neither reading);
 - pairs: every term is per *pair*, averaged over the batch's pairs (Eq. 1 is the pair's
   contrastive term plus KL(P1) + KL(P2); footnote 1 makes the other terms per motion, so a pair
-  carries both motions' terms): the per-window means are doubled (``PAIR``);
+  carries both motions' terms; the code sums the two windows' terms and averages over the
+  batch): the per-window means are doubled (``PAIR``);
 - contrastive (``contrastive``; Eq. 1's first two lines; ``d = ‖μ_1 − μ_2‖``, margin α = 5),
   averaged over pairs: ``contrastive_form="code"`` (default) same class ``0.5·relu(d² − 0.25)``,
   other class ``0.5·relu(α − d)²``; ``"paper"`` ``d²`` and ``relu(α − d)²``.
-  ``contrastive=False`` is the −L_es ablation ("ODMO becomes a classic VAE", §4.2.4): the
-  contrastive terms go and, with ``classic_mu_prior`` (default), the standard VAE's prior on μ
-  takes their place, ``μᵀμ`` per window (supp. §3.1: the KL to N(0, I) splits into (a) μᵀμ and
-  (b) the Σ term; ODMO replaces (a) by the contrastive prior and rescales (b) by σ²); the KL
-  below stays as configured;
+  ``contrastive=False`` is the −L_es ablation: the code drops the term (its ``use_contrastive``)
+  and nothing takes its place (default, ``classic_mu_prior=False``); ``classic_mu_prior=True``
+  is the paper's reading "ODMO becomes a classic VAE" (§4.2.4): the standard VAE's prior on μ,
+  ``μᵀμ`` per window (supp. §3.1: the KL to N(0, I) splits into (a) μᵀμ and (b) the Σ term;
+  ODMO replaces (a) by the contrastive prior and rescales (b) by σ²).  The KL below stays as
+  configured either way;
 - KL (averaged over windows).  Prior variance ``v = sigma2²`` (``sigma_reading="std"``, default,
   the reference's reading) or ``v = sigma2`` (``"variance"``).  ``kl_form="code"`` (default):
   ``KL(N(0, e^{logvar}) ‖ N(0, v))`` summed over latent dims (the mean excluded, as the reference);
@@ -37,19 +58,21 @@ reference's ``rsample + mu``):
   σ² = 0.0025; paper/variance = Eq. 1 as printed.  Both are minimal at ``e^{logvar} = v``;
 - ``L = λ_mre·L_mre + λ_r·L_r + λ_cons·L_cons + λ_es·contrastive + λ_kl·KL``, all λ = 1 (Eq. 5);
   the step's dict holds the unweighted terms (a switched-off term is absent).  Balance: with
-  ``"sum"`` the reconstruction is O(10-100) per window and the contrastive term O(1); the KL
-  starts at ~200 per latent dim (posterior variance 1 against 0.0025) and falls to O(1) as the
-  log-variance head adapts (some hundred steps).  With ``"mean"`` the reconstruction is
-  ``T·J·3`` times smaller (the reference's balance).
+  ``"sum"`` the reconstruction is ``J·3`` times the code's per frame (the contrastive and KL
+  terms unchanged), so the paper's sums weight reconstruction far more against them; with
+  ``"mean"`` it is ``T`` times smaller than the code's.
 
 **Training** (supp. §2.1, protocols.md §3.9): each epoch draws ``windows_per_epoch`` (2,048)
-(anchor, partner) pairs (``train_items.draw_pairs``, numpy generator from (seed, epoch)); both
-windows go through the whole model as one concatenated batch (BatchNorm sees both):
-reconstruction on both, contrastive on the pair; batches of ``batch_size`` (512) pairs; Adam
+(anchor, partner) pairs (``train_items.draw_pairs``, numpy generator from (seed, epoch)); the
+anchors and the partners are encoded as two batches, as the code's two model calls (its
+encoder's BatchNorm normalises each side over its own batch), then both go through the
+generators as one batch (no other layer sees the batch; one teacher-forcing draw per step
+serves both, where the code draws per call): reconstruction on both, contrastive on the pair; batches of ``batch_size`` (512) pairs; Adam
 lr 1e-3, gradient-norm clip 1; ``epochs`` = the reference's 100,000.  ``Gr`` gets the real end
 location (root at the last frame; zeros when ``use_end`` is false, the −r_e ablation, in training
 and sampling) and the posterior sample ``z``; ``Gm`` gets the *predicted* trajectory ``r̂`` (the
-paper's guidance trajectory T̂, Eq. 3), not detached, so ``L_mre`` also trains ``Gr`` (what keeps
+paper's guidance trajectory T̂, Eq. 3; the code's ``pred_traj``) through its trajectory
+encoder's final state ``h_0``, not detached, so ``L_mre`` also trains ``Gr`` (what keeps
 ``Gr`` trained in the −L_traj row).  Teacher forcing ``tf``: linear from ``tf_start`` 1.0 to
 ``tf_end`` 0.3 over ``tf_decay_epochs`` (4,000), then constant; drawn per step (odmo_nets).  The
 reference keeps the checkpoint with the best *test* accuracy after epoch 5,000 (§7 item 14); we
@@ -59,8 +82,12 @@ keep the last epoch.  Validation: the same terms on a fixed seeded draw of ``val
 class-balanced pool windows (``pool.draw``) with end locations.  ``sampling="mode_preserving"``,
 per class: :func:`repro.metrics.modes.select_k` on the unique codes under ``k_rule``, a GMM(K)
 refit with the same settings (full covariance, k-means, ``n_init`` 5, same seed), components
-holding too few unique codes dropped per ``RULES[rule].drop_at_most`` ("discovery": only empty
-ones; if all are small the largest stays), ``floor(n·count/Σcount)`` draws per kept component,
+holding too few unique codes dropped per the rule (code ``<= 10``, paper ``< 10``,
+"discovery": only empty ones; if all are small the largest stays), the threshold scaled by the
+per-epoch draw against the reference's (``windows_per_epoch / 2048``, which gives the code's
+absolute 10 at the paper's settings whatever the bank's passes and classes; 0.625
+at quick, only empty components dropped, 1.25 at medium, single-code components dropped;
+:func:`mode_preserving_codes`), ``floor(n·count/Σcount)`` draws per kept component,
 the remainder to the first; under ``k_min + 1`` distinct codes one Gaussian (our fallback).
 ``"conventional"`` (ODMO_conv), ``conventional_form="code"``: the reference's "standard" (one
 C-component GMM over all unique codes, k-means, tol 1e-4, max_iter 200, warm start; each class
@@ -95,16 +122,35 @@ from repro import kernels
 _U32 = 2 ** 32
 #: windows per pair: per-window means × PAIR = per-pair sums (Eq. 1, footnote 1)
 PAIR = 2.0
+#: the reference's pairs per epoch (protocols.md §3.9): its code bank of ``num_itr`` epochs'
+#: windows is what the sampler's small-component threshold of 10 was set for
+REFERENCE_WINDOWS_PER_EPOCH = 2048
+
+# The paper's reading of every paper ↔ code difference (docs/odmo.md, "Paper ↔ code readings"),
+# as ODMOConfig values: what a spec's "(paper reading)" row sets.  Training: every such row;
+# sampling: where the row samples modes (k_rule) or samples conventionally (conventional_form);
+# classic_mu_prior where the row drops the contrastive term (−L_es).
+PAPER_TRAINING_READINGS: dict[str, object] = {
+    "traj_target": "velocity", "reduction": "sum", "contrastive_form": "paper",
+    "kl_form": "paper", "sigma_reading": "variance", "y_weight": 1.0, "decoder_time": False}
+PAPER_SAMPLING_READINGS: dict[str, object] = {"k_rule": "paper", "conventional_form": "paper"}
+PAPER_ABLATION_READINGS: dict[str, object] = {"classic_mu_prior": True}
 
 
 class ODMOConfig(GeneratorConfig):
-    """ODMO hyper-parameters; defaults = the paper / the reference code (module docstring)."""
+    """ODMO hyper-parameters.  Defaults: the released code's reading wherever the paper and the
+    code disagree (the paper's reading is the field's other value), the paper's values where
+    they agree (module docstring, docs/odmo.md)."""
 
     latent_dim: int = Field(20, ge=1)
     enc_hidden: int = Field(64, ge=1)      # Table S2
-    enc_feature: int = Field(64, ge=1)     # feature-layer width (Table S2 silent; ours)
-    embed: int = Field(128, ge=1)          # embedding widths (Table S2 silent; ours)
+    enc_feature: int = Field(256, ge=1)    # feature-layer width (Table S2 silent; the code 256)
+    embed: int | None = Field(None, ge=1)  # embedding widths; None = hidden (the code)
     hidden: int = Field(128, ge=1)         # Table S2
+    encoder_head: Literal["code", "compact"] = "code"   # compact: 1 FC + 2 heads (harness)
+    trajectory_input: Literal["code", "repeat"] = "code"  # repeat: one input, repeated (harness)
+    window: int | None = Field(None, ge=2)  # T the network is built for; None: the items' (fit)
+    decoder_time: bool = True              # the code's (t+1)/T decoder input; §3.2(iii): False
     contrastive: bool = True
     contrastive_form: Literal["code", "paper"] = "code"
     margin: float = Field(5.0, ge=0)
@@ -112,11 +158,12 @@ class ODMOConfig(GeneratorConfig):
     sigma2: float = Field(0.05, gt=0)
     sigma_reading: Literal["std", "variance"] = "std"
     traj_loss: bool = True
+    traj_target: Literal["position", "velocity"] = "position"  # the code; Eq. 2: "velocity"
     cons_loss: bool = True
     use_end: bool = True
     y_weight: float | None = Field(None, gt=0)  # None: the items' (5 HumanAct12/UESTC, 1 MoCap)
-    reduction: Literal["sum", "mean"] = "mean"  # the code's MSE; the paper's Σ: "sum"
-    classic_mu_prior: bool = True          # −L_es: μᵀμ replaces the contrastive prior (supp. §3.1)
+    reduction: Literal["code", "sum", "mean"] = "code"  # paper's Σ: "sum"; "mean": harness
+    classic_mu_prior: bool = False         # −L_es: True = the paper's "classic VAE" μᵀμ (supp. §3.1)
     lambda_mre: float = Field(1.0, ge=0)
     lambda_r: float = Field(1.0, ge=0)
     lambda_cons: float = Field(1.0, ge=0)
@@ -179,12 +226,18 @@ def _gaussian(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def mode_preserving_codes(codes: np.ndarray, n: int, *, rule: str, seed: int,
-                          rng: np.random.Generator, modes=None) -> np.ndarray:
+                          rng: np.random.Generator, modes=None,
+                          bank_scale: float | None = None) -> np.ndarray:
     """``n`` codes of one class by mode-preserving sampling (module docstring): the GMM, its
     kept components and their counts are :func:`repro.metrics.modes.discover_modes`' fit of the
     class's distinct codes (K chosen under ``rule``, ``n_init`` 5, ``random_state`` from
-    ``seed``); ``modes``: that result when the caller already has it (Table 3 scores the same
-    fit), so it is not fitted twice."""
+    ``seed``); ``modes``: that result when the caller already has it, so it is not fitted
+    twice.  ``bank_scale``: the per-epoch draw relative to the reference's (``windows_per_epoch
+    / 2048``, :data:`REFERENCE_WINDOWS_PER_EPOCH`; not the bank's per-class size, which also
+    depends on the passes and the classes: the ratio gives the code's absolute 10 at the
+    paper's settings); the small-component threshold (the code's ``<= 10``, the paper's
+    ``< 10``) is scaled by it, so a small bank keeps its modes (issue 27; ``None``: the
+    published 10).  Table 3 scales per class instead (:mod:`repro.eval.protocols.latent_modes`)."""
     from repro.metrics.modes import RULES, discover_modes
 
     if rule not in RULES:
@@ -193,7 +246,10 @@ def mode_preserving_codes(codes: np.ndarray, n: int, *, rule: str, seed: int,
     if uniq.shape[0] < spec.k_min + 1:
         return rng.multivariate_normal(*_gaussian(uniq), size=int(n))
     if modes is None:
-        modes = discover_modes(codes, rule=rule, seed=int(seed) % _U32, n_init=5)
+        # the threshold scales by codes drawn / reference: bank_scale exactly
+        ref = None if bank_scale is None else len(codes) / float(bank_scale)
+        modes = discover_modes(codes, rule=rule, seed=int(seed) % _U32, n_init=5,
+                               reference_codes=ref)
     gmm, counts, kept = modes.mixture, modes.counts, np.asarray(modes.kept, dtype=np.int64)
     alloc = (int(n) * counts[kept]) // counts[kept].sum()
     alloc[0] += int(n) - int(alloc.sum())
@@ -247,16 +303,28 @@ class ODMO(Generator):
 
     def __init__(self, config, skeleton, n_classes: int, fps: float):
         super().__init__(config, skeleton, n_classes, fps)
-        self._build(derive_seed(0, self.method_id, "construct"))
+        self.net: ODMONet | None = None
+        if not self._needs_window():
+            self._build(derive_seed(0, self.method_id, "construct"))
+
+    def _needs_window(self) -> bool:
+        """True while the network cannot be built: the code's trajectory input and no window
+        length yet (module docstring, "Window length")."""
+        return self.config.trajectory_input == "code" and self.config.window is None
 
     def _make_network(self) -> ODMONet:
         c = self.config
         return ODMONet(self.skeleton.n_joints, self.n_classes, latent=c.latent_dim,
                        enc_hidden=c.enc_hidden, enc_feature=c.enc_feature, embed=c.embed,
-                       hidden=c.hidden)
+                       hidden=c.hidden, encoder_head=c.encoder_head,
+                       trajectory_input=c.trajectory_input, window=c.window,
+                       decoder_time=c.decoder_time)
 
     @property
     def network(self) -> ODMONet:
+        if self.net is None:
+            raise ConfigError("odmo: the code's trajectory generator is built for one window "
+                              "length: set the config's window, or fit the model first")
         return self.net
 
     def describe(self) -> dict:
@@ -272,6 +340,10 @@ class ODMO(Generator):
                               f"classes, the model {self.skeleton.n_joints} and {self.n_classes}")
         if len(items) == 0:
             raise DataError("odmo: no items")
+        w = self.config.window
+        if self.config.trajectory_input == "code" and w is not None and items.window != w:
+            raise ConfigError(f"odmo: the model is built for windows of {w} frames, the items "
+                              f"have {items.window}")
 
     # -- training ------------------------------------------------------------------------------
     def teacher_forcing(self, epoch: int) -> float:
@@ -297,7 +369,9 @@ class ODMO(Generator):
         x = torch.cat([batch["anchor"], batch["partner"]])
         labels = torch.cat([batch["labels_a"], batch["labels_p"]])
         yw = float(batch.get("y_weight", 1.0))
-        mu, logvar = net.encode(x)
+        # two encoder calls, as the code's one_batch: BatchNorm statistics per side
+        (mu_a, lv_a), (mu_p, lv_p) = net.encode(batch["anchor"]), net.encode(batch["partner"])
+        mu, logvar = torch.cat([mu_a, mu_p]), torch.cat([lv_a, lv_p])
         z = mu + torch.exp(0.5 * logvar) * torch.randn_like(mu)
         root = x[:, :, 0]
         end = root[:, -1] if c.use_end else torch.zeros_like(root[:, -1])
@@ -307,9 +381,10 @@ class ODMO(Generator):
         # per-motion terms for both motions), averaged over the batch's pairs: the window
         # means below are doubled (PAIR) to be sums over the pair's two windows
         terms = {"mre": (c.lambda_mre, PAIR * squared_error(poses - x, yw, c.reduction))}
-        if c.traj_loss:
-            terms["traj"] = (c.lambda_r, PAIR * squared_error(
-                vel - (root[:, 1:] - root[:, :-1]), yw, c.reduction))
+        if c.traj_loss:  # the code: positions (to_location); Eq. 2: velocities
+            err = traj - root if c.traj_target == "position" else \
+                vel - (root[:, 1:] - root[:, :-1])
+            terms["traj"] = (c.lambda_r, PAIR * squared_error(err, yw, c.reduction))
         if c.cons_loss:
             terms["cons"] = (c.lambda_cons, PAIR * squared_error(traj - poses[:, :, 0], 1.0,
                                                                  c.reduction))
@@ -333,6 +408,8 @@ class ODMO(Generator):
         self._check_items(train_items)
         if val_items is not None:
             self._check_items(val_items)
+        if self._needs_window():  # the network is built for the items' window length
+            self.config = self.config.model_copy(update={"window": int(train_items.window)})
         c = self.config
         self._build(derive_seed(seed, self.method_id, "init"))
         yw = float(c.y_weight if c.y_weight is not None else train_items.y_weight)
@@ -366,7 +443,7 @@ class ODMO(Generator):
     def latent_codes(self, batch_joints) -> np.ndarray:
         """μ (N, D) float64 of windows ``batch_joints`` (N, T, J, 3), computed on their LMP."""
         x = torch.as_tensor(np.asarray(batch_joints, np.float32))
-        self.net.eval()
+        self.network.eval()
         bs = self.config.sample_batch_size
         out = [self.net.encode(x[s:s + bs].to(self.device))[0].cpu() for s in range(0, x.shape[0], bs)]
         return torch.cat(out).double().numpy() if out else np.zeros((0, self.config.latent_dim))
@@ -412,7 +489,8 @@ class ODMO(Generator):
             else:
                 codes.append(mode_preserving_codes(
                     bank.codes[bank.labels == k], n, rule=rule, rng=rng,
-                    seed=derive_seed(seed, self.method_id, "gmm", k)))
+                    seed=derive_seed(seed, self.method_id, "gmm", k),
+                    bank_scale=c.windows_per_epoch / REFERENCE_WINDOWS_PER_EPOCH))
         labels = np.concatenate([np.full(int(counts[k]), k, np.int64) for k in classes] or
                                 [np.zeros(0, np.int64)])
         out = np.concatenate(codes) if codes else np.zeros((0, c.latent_dim))
@@ -443,7 +521,7 @@ class ODMO(Generator):
         e = torch.as_tensor(np.asarray(ends, np.float32)).reshape(-1, 3)
         if not (self.config.use_end and (use_end is None or use_end)):
             e = torch.zeros_like(e)
-        self.net.eval()
+        self.network.eval()
         bs, J = self.config.sample_batch_size, self.skeleton.n_joints
         out = torch.zeros(z.shape[0], int(n_frames), J, 3)
         for s in range(0, z.shape[0], bs):

@@ -173,6 +173,9 @@ METRICS: Mapping[str, MetricInfo] = _freeze([
     MetricInfo("dist_e", "dist_e", "", "lower",
                "ODMO §4.4: squared distance between target and generated end location"),
     # harness columns, in none of the papers (repro.eval.protocols.latent_modes)
+    MetricInfo("style_ami", "Style AMI", "", "higher",
+               "harness: adjusted mutual information (chance-corrected) between latent modes and "
+               "the stand-in's recorded styles, per class then averaged"),
     MetricInfo("style_nmi", "Style NMI", "", "higher",
                "harness: normalised mutual information between latent modes and the stand-in's "
                "recorded styles, per class then averaged"),
