@@ -65,9 +65,8 @@ Rule = Literal["code", "paper", "discovery"]
 class RuleSpec:
     k_min: int
     k_max: int
-    drop_at_most: int | None  # drop components with count <= this (None: drop nothing)
-    small: float | None = None  # the published threshold ("<= 10" code, "< 10" paper)
-    inclusive: bool = True      # True: count <= small is dropped; False: count < small
+    small: float | None = None  # the published threshold ("<= 10" code, "< 10" paper; None:
+    inclusive: bool = True      # only empty components go); True: count <= small is dropped
 
     def dropped(self, counts: np.ndarray, scale: float = 1.0) -> np.ndarray:
         """Mask of the components too small to keep, the threshold × ``scale``."""
@@ -79,9 +78,9 @@ class RuleSpec:
 
 
 RULES: dict[str, RuleSpec] = {
-    "code": RuleSpec(k_min=3, k_max=9, drop_at_most=10, small=10.0, inclusive=True),
-    "paper": RuleSpec(k_min=3, k_max=11, drop_at_most=9, small=10.0, inclusive=False),  # "< 10"
-    "discovery": RuleSpec(k_min=3, k_max=9, drop_at_most=None),
+    "code": RuleSpec(k_min=3, k_max=9, small=10.0, inclusive=True),
+    "paper": RuleSpec(k_min=3, k_max=11, small=10.0, inclusive=False),  # "< 10"
+    "discovery": RuleSpec(k_min=3, k_max=9),
 }
 
 
@@ -269,7 +268,7 @@ class ModeHomogeneityResult:
 def mode_homogeneity(motions, codes, labels, rule: Rule = "code", seed: int = 0,
                      n_classes: int | None = None, unique: bool = True,
                      small_modes: Literal["reassign", "exclude"] = "reassign",
-                     n_init: int = 5, reference_codes: int | None = None) -> ModeHomogeneityResult:
+                     n_init: int = 5, reference_codes: float | None = None) -> ModeHomogeneityResult:
     """ODMO Table 3 mode-homogeneity (%) of real sequences ``motions`` (N, T, J, 3) whose
     latent codes are ``codes`` (N, D) and classes ``labels`` (N,); see the module docstring."""
     x = flatten_sequences(motions, "motions")

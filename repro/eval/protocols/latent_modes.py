@@ -226,9 +226,9 @@ class LatentModes(OdmoProtocol):
         """The "Real Motions" row (``latent`` None) or a calibration row (module docstring)."""
         from repro.metrics.modes import mode_apd
 
-        b = self.windows(ctx, self.replicate_seed(seed, replicate))
+        s = self.replicate_seed(seed, replicate)
+        b = self.windows(ctx, s)
         if latent is not None:
-            s = self.replicate_seed(seed, replicate)
             codes = calibration_codes(latent, b.joints, self.params.calibration_dim, s)
             return self.score(self._samples(ctx, b, codes), ctx.train.n_classes, seed)
         vals = []
