@@ -142,13 +142,21 @@ def tables(names: list[str], jobs: int, reference: Path | None) -> dict:
         procs[label] = (time.perf_counter(), subprocess.Popen(
             [repro, "run", *names, "--scale", "quick", "--quiet", "--jobs", str(jobs), *extra],
             env=_env(REPRO_HOME=str(home), **env), cwd=ROOT, stdout=subprocess.DEVNULL,
-            stderr=subprocess.PIPE, text=True))
+            stderr=(home / "stderr.txt").open("w")))
     out: dict = {"tables": names, "jobs_per_run": jobs, "runs": {}}
+    # each run's own end time: polled, so a run that ends first is not timed as the last one
+    # (reading them in turn timed every run as the slowest)
+    ended: dict[str, float] = {}
+    while len(ended) < len(procs):
+        for label, (_, p) in procs.items():
+            if label not in ended and p.poll() is not None:
+                ended[label] = time.perf_counter()
+        time.sleep(0.5)
     for label, (t0, p) in procs.items():
-        _, err = p.communicate()
         if p.returncode != 0:
+            err = (homes[label] / "stderr.txt").read_text(errors="replace")
             raise SystemExit(f"{label}: repro run failed: {err[-800:]}")
-        out["runs"][label] = {"seconds": round(time.perf_counter() - t0, 1),
+        out["runs"][label] = {"seconds": round(ended[label] - t0, 1),
                               "home": str(homes[label])}
     pinned = homes[variants[0][0]]
     ref = reference if reference is not None else homes["pinned, nothing set"]
