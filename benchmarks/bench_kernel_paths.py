@@ -37,6 +37,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 BATTERY = ROOT / "benchmarks" / "kernel_ops.py"
+GOLDEN = ROOT / "tests" / "golden" / "kernel_ops.json"
 AMBIENT = ("ATEN_CPU_CAPABILITY", "MKL_CBWR", "ONEDNN_MAX_CPU_ISA", "DNNL_MAX_CPU_ISA",
            "OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES", "MKL_DYNAMIC", "OMP_DYNAMIC",
            "REPRO_FAST_KERNELS")
@@ -109,6 +110,12 @@ def ops(use_qemu: bool) -> dict:
                    if native_unused else {})}
     ok = all(not v["differ"] for v in out["pinned"].values())
     out["pinned_all_equal"] = ok
+    # the pinned bytes against the hashes committed from the golden host (another CPU)
+    golden = json.loads(GOLDEN.read_text())
+    out["golden"] = {"host": golden["note"],
+                     "ops": len(golden["ops"]),
+                     "differ": sorted(k for k in golden["ops"] if ref_ops.get(k) != golden["ops"][k])}
+    out["hashes"] = ref_ops
     return out
 
 
@@ -139,20 +146,34 @@ def tables(names: list[str], jobs: int, reference: Path | None) -> dict:
     for label, env, extra in variants:
         home = Path(tempfile.mkdtemp(prefix="repro-paths-"))
         homes[label] = home
-        procs[label] = (time.perf_counter(), subprocess.Popen(
-            [repro, "run", *names, "--scale", "quick", "--quiet", "--jobs", str(jobs), *extra],
-            env=_env(REPRO_HOME=str(home), **env), cwd=ROOT, stdout=subprocess.DEVNULL,
-            stderr=(home / "stderr.txt").open("w")))
+        with (home / "stderr.txt").open("w") as err:  # the child keeps its own descriptor
+            procs[label] = (time.perf_counter(), subprocess.Popen(
+                [repro, "run", *names, "--scale", "quick", "--quiet", "--jobs", str(jobs),
+                 *extra],
+                env=_env(REPRO_HOME=str(home), **env), cwd=ROOT, stdout=subprocess.DEVNULL,
+                stderr=err))
     out: dict = {"tables": names, "jobs_per_run": jobs, "runs": {}}
     # each run's own end time: polled, so a run that ends first is not timed as the last one
     # (reading them in turn timed every run as the slowest)
     ended: dict[str, float] = {}
+    deadline = time.perf_counter() + 4 * 3600  # a hung run ends the benchmark, not the machine
+
+    def stop_all() -> None:
+        for _, q in procs.values():
+            if q.poll() is None:
+                q.terminate()
+
     while len(ended) < len(procs):
         for label, (_, p) in procs.items():
             if label not in ended and p.poll() is not None:
                 ended[label] = time.perf_counter()
+                if p.returncode != 0:  # one failed: stop the others now, report it below
+                    stop_all()
+        if time.perf_counter() > deadline:
+            stop_all()
+            raise SystemExit("part 2: a table run took over 4 hours; stopped")
         time.sleep(0.5)
-    for label, (t0, p) in procs.items():
+    for label, (t0, p) in sorted(procs.items(), key=lambda kv: ended[kv[0]]):  # first end first
         if p.returncode != 0:
             err = (homes[label] / "stderr.txt").read_text(errors="replace")
             raise SystemExit(f"{label}: repro run failed: {err[-800:]}")

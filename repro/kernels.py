@@ -68,6 +68,10 @@ PINNED_ENV: dict[str, str] = {
     "NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR",
 }
 
+#: Environment variables that choose kernel paths (the pin's, and the two it clears or that
+#: widen MKL's): under fast kernels their ambient values enter the job key (:func:`key`)
+PATH_ENV = frozenset(PINNED_ENV) | {"NPY_ENABLE_CPU_FEATURES", "MKL_ENABLE_INSTRUCTIONS"}
+
 #: MKL's ``mkl_cbwr_get(MKL_CBWR_BRANCH)`` codes (mkl_cbwr.h)
 _MKL_BRANCHES = {1: "OFF", 2: "AUTO", 3: "COMPATIBLE", 4: "SSE2", 6: "SSSE3", 7: "SSE4_1",
                  8: "SSE4_2", 9: "AVX", 10: "AVX2", 11: "AVX512_MIC", 12: "AVX512",
@@ -231,7 +235,14 @@ def key() -> dict[str, Any]:
     under fast kernels, the host's own paths (bytes of one kind of CPU)."""
     if fast_requested():
         h = host_paths()
-        return {"mode": "fast", "vendor": h["vendor"], "model": h["model"], "isa": h["isa"]}
+        out = {"mode": "fast", "vendor": h["vendor"], "model": h["model"], "isa": h["isa"]}
+        # the environment still chooses paths on one host (ATEN_CPU_CAPABILITY=default changes
+        # 40 of the op battery's 50 results, MKL_CBWR=COMPATIBLE 7): a fast key names what was
+        # set, so one store never hands such bytes to a run with other settings
+        ambient = {k: os.environ[k] for k in sorted(PATH_ENV) if k in os.environ}
+        if ambient:
+            out["ambient"] = ambient
+        return out
     return {"mode": "pinned", "pin": PIN_NAME, "version": PIN_VERSION}
 
 

@@ -70,6 +70,12 @@ def test_fast_kernels_keep_the_hosts_paths_and_say_so():
     assert st["aten"] == "DEFAULT" and st["onednn"] is True  # nothing pinned
     assert key["mode"] == "fast" and key["isa"] and rec["mode"] == "fast"
     assert "fast" in kernels.describe(rec)
+    # the ambient setting that chose those paths is in the key: the same host with nothing set
+    # computes other bytes (the op battery: 40 of 50 differ) and must not share the key
+    assert key["ambient"] == {"ATEN_CPU_CAPABILITY": "default"}
+    r2 = _py(code, REPRO_FAST_KERNELS="1")
+    assert r2.returncode == 0, r2.stderr
+    assert "ambient" not in json.loads(r2.stdout)[1]
 
 
 def test_numeric_libraries_loaded_before_repro_are_refused():
