@@ -172,11 +172,12 @@ def _print_declared_card(card: dict) -> None:
             more = " …" if d["count"] > len(d["first"]) else ""
             con.print(f"{d['count']} {what}: {', '.join(d['first'])}{more}")
     if card.get("excluded_files"):
-        con.print(f"{card['excluded_files']} file(s) left out by [source] exclude")
+        con.print(f"{card['excluded_files']} file(s) left out by [source] exclude",
+                  markup=False)
     dropped = (card.get("dropped_clips") or {}).get("by_class") or {}
     if dropped:
         con.print(f"{sum(dropped.values())} clip(s) dropped, their class not in [labels] "
-                  "classes: " + ", ".join(f"{k} {v}" for k, v in dropped.items()))
+                  "classes: " + ", ".join(f"{k} {v}" for k, v in dropped.items()), markup=False)
 
 
 def _check_spec(args: argparse.Namespace) -> int:
@@ -215,6 +216,12 @@ def _check_labels(spec, spec_file: str) -> None:
         print(f"  source {source} is not there: labels and split not checked")
         return
     r = check_report(spec, Path(spec_file))
+    if not r["files"]:
+        from repro.data.dataset_spec import clip_patterns
+
+        print(f"  no file in the source matches {' or '.join(clip_patterns(spec))}: labels and "
+              "split not checked (`repro data prepare` refuses such a source)")
+        return
     con = Console()
     con.print(f"  {r['files']} clip file(s), {r['clips']} clip(s) kept"
               + (f", {r['excluded']} file(s) excluded" if r["excluded"] else ""))
@@ -224,14 +231,14 @@ def _check_labels(spec, spec_file: str) -> None:
         t.add_row(k, str(v["clips"]), str(v["train"]), str(v["test"]), str(v["marionette_test"]))
     con.print(t)
     for what, n in r["dropped_by_class"].items():
-        con.print(f"  dropped (not in [labels] classes): {what}: {n} clip(s)")
+        con.print(f"  dropped (not in [labels] classes): {what}: {n} clip(s)", markup=False)
     if r["unlisted"]:
         con.print(f"  dropped (the labels do not name them): {r['unlisted']} clip(s)")
     if r["marionette_no_test"]:
-        con.print(f"  [yellow]warning[/yellow]: Neural Marionette's split (the marionette/* "
-                  f"tables) gives no test clip to {', '.join(r['marionette_no_test'])} (a class "
-                  f"needs at least {r['marionette_min_clips']} clips); `repro run` refuses "
-                  "those tables until the class is dropped or has more clips")
+        con.print(f"  warning: Neural Marionette's split (the marionette/* tables) gives no "
+                  f"test clip to {', '.join(r['marionette_no_test'])} (a class needs at least "
+                  f"{r['marionette_min_clips']} clips); `repro run` refuses those tables until "
+                  "the class is dropped or has more clips", markup=False)
     if r["problems"]:
         raise DataError("; ".join(r["problems"]), spec_file)
 

@@ -12,14 +12,17 @@ the skeleton's conventions, the frame rate and the split::
     path = "mocap"                      # a folder or a .tar/.tar.gz/.tar.xz archive, relative
     format = "bvh"                      # to the spec file; "bvh" or "asf_amc"
     include = "*.bvh"                   # clip files, fnmatch over the path inside the source
-                                        # ("*" crosses folders; default *.bvh / *.amc)
+                                        # ("*" crosses folders; default *.bvh / *.amc); a list
+    # exclude = ["*_calib*.bvh"]        # files include takes that are not read
     # asf = "skeleton.asf"              # asf_amc: the one skeleton every AMC clip moves
 
     [labels]
     from = "filename"                   # "filename" (regex), "csv" or "json" (a side file)
     pattern = '^(?P<subject>s\\d+)_(?P<action>[a-z-]+)_\\d+$'   # over the file stem
     # file = "labels.csv"               # csv: columns clip, action[, style][, subject]
-    # classes = ["walk", "jump"]        # the tag order (default: sorted names found)
+    # classes = ["walk", "jump"]        # the tag order (default: sorted names found); a
+                                        # subset drops the other actions' clips
+    # unlisted = "drop"                 # clips the labels do not name: left out ("error")
 
     [skeleton]
     up_axis = "y"                       # "y" or "z" (z-up data is turned to y-up)
@@ -35,7 +38,8 @@ the skeleton's conventions, the frame rate and the split::
     [split]
     test_fraction = 0.2                 # stratified by action (and style when labelled)
     seed = 0
-    # by = "subject"                    # whole subjects to test (needs subject labels)
+    # by = "subject"                    # whole subjects (or "style": styles) to test
+    # stratify = "action"               # by subject: every action on both sides
 
     [expect]                            # optional facts checked at prepare (and on reuse)
     # clips = 120
@@ -375,12 +379,14 @@ def role_of(spec: DatasetSpec, name: str) -> str | None:
         return "asf"
     if not any(matches(name, p) for p in clip_patterns(spec)):
         return None
-    return None if is_excluded(spec, name) else "clip"
+    return None if any(matches(name, p) for p in exclude_patterns(spec)) else "clip"
 
 
 def is_excluded(spec: DatasetSpec, name: str) -> bool:
-    """Whether an ``exclude`` pattern takes the file ``name`` (its path inside the source)."""
-    return any(matches(name, p) for p in exclude_patterns(spec))
+    """Whether the file ``name`` (its path inside the source) is one an ``include`` pattern
+    takes and an ``exclude`` pattern leaves out."""
+    return any(matches(name, p) for p in exclude_patterns(spec)) and \
+        any(matches(name, p) for p in clip_patterns(spec))
 
 
 def builtin_spec_path(name: str) -> Path:
