@@ -165,11 +165,19 @@ def _print_declared_card(card: dict) -> None:
     for w in card.get("warnings", []):
         con.print(f"[yellow]warning[/yellow]: {w}")
     for key, what in (("skipped_files", "file(s) in the source matched no pattern"),
-                      ("unused_label_rows", "label row(s) name no clip of the source")):
+                      ("unused_label_rows", "label row(s) name no clip of the source"),
+                      ("unlisted_clips", "clip(s) dropped: the labels do not name them")):
         d = card.get(key) or {}
         if d.get("count"):
             more = " …" if d["count"] > len(d["first"]) else ""
             con.print(f"{d['count']} {what}: {', '.join(d['first'])}{more}")
+    if card.get("excluded_files"):
+        con.print(f"{card['excluded_files']} file(s) left out by [source] exclude",
+                  markup=False)
+    dropped = (card.get("dropped_clips") or {}).get("by_class") or {}
+    if dropped:
+        con.print(f"{sum(dropped.values())} clip(s) dropped, their class not in [labels] "
+                  "classes: " + ", ".join(f"{k} {v}" for k, v in dropped.items()), markup=False)
 
 
 def _check_spec(args: argparse.Namespace) -> int:
@@ -186,7 +194,53 @@ def _check_spec(args: argparse.Namespace) -> int:
         spec = load_dataset_spec(f)
         print(f"{f}: ok: data set {spec.name!r}, {spec.source.format} files in "
               f"{spec.source.path!r}, labels from {spec.labels.from_}")
+        _check_labels(spec, f)
     return 0
+
+
+def _check_labels(spec, spec_file: str) -> None:
+    """The label rules applied to the source's file names (and labels file), no clip parsed
+    (:func:`repro.data.dataset_clips.check_report`): per-class clips and the data set's own
+    train / test counts, what is dropped, and a DataError (exit 2) for the problems prepare
+    would refuse: unused classes, a class without a test or training clip."""
+    from pathlib import Path
+
+    from rich.console import Console
+    from rich.table import Table
+
+    from repro.data.dataset_clips import check_report
+    from repro.errors import DataError
+
+    source = Path(spec_file).resolve().parent / spec.source.path
+    if not source.exists():
+        print(f"  source {source} is not there: labels and split not checked")
+        return
+    r = check_report(spec, Path(spec_file))
+    if not r["files"]:
+        from repro.data.dataset_spec import clip_patterns
+
+        print(f"  no file in the source matches {' or '.join(clip_patterns(spec))}: labels and "
+              "split not checked (`repro data prepare` refuses such a source)")
+        return
+    con = Console()
+    con.print(f"  {r['files']} clip file(s), {r['clips']} clip(s) kept"
+              + (f", {r['excluded']} file(s) excluded" if r["excluded"] else ""))
+    t = Table("class", "clips", "train", "test", "NM test", title="per class (the data set's "
+              "split; NM: Neural Marionette's per-class split)")
+    for k, v in r["per_class"].items():
+        t.add_row(k, str(v["clips"]), str(v["train"]), str(v["test"]), str(v["marionette_test"]))
+    con.print(t)
+    for what, n in r["dropped_by_class"].items():
+        con.print(f"  dropped (not in [labels] classes): {what}: {n} clip(s)", markup=False)
+    if r["unlisted"]:
+        con.print(f"  dropped (the labels do not name them): {r['unlisted']} clip(s)")
+    if r["marionette_no_test"]:
+        con.print(f"  warning: Neural Marionette's split (the marionette/* tables) gives no "
+                  f"test clip to {', '.join(r['marionette_no_test'])} (a class needs at least "
+                  f"{r['marionette_min_clips']} clips); `repro run` refuses those tables until "
+                  "the class is dropped or has more clips", markup=False)
+    if r["problems"]:
+        raise DataError("; ".join(r["problems"]), spec_file)
 
 
 def _prepare_view(args: argparse.Namespace) -> int:

@@ -21,6 +21,7 @@ import io
 import json
 import re
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -164,7 +165,8 @@ def _time_bound(seconds: float):
 
 def _from_names(lab: LabelSpec, stems: list[str], where) -> dict[str, tuple]:
     """clip -> (action, style, subject) by the spec's pattern over each clip name, all the
-    matching within :data:`~repro.data.dataset_spec.MATCH_SECONDS`."""
+    matching within :data:`~repro.data.dataset_spec.MATCH_SECONDS`; a name the pattern does
+    not match is absent when ``[labels] unlisted = "drop"``, else refused."""
     rx = re.compile(lab.pattern)
     got: dict[str, tuple] = {}
     s = ""
@@ -179,8 +181,11 @@ def _from_names(lab: LabelSpec, stems: list[str], where) -> dict[str, tuple]:
                         where) from None
     for s, m in zip(stems, found):
         if m is None or m.group("action") is None:
+            if lab.unlisted == "drop":
+                continue
             raise DataError(f"file name {s!r} does not match the labels pattern "
-                            f"{lab.pattern!r}", where)
+                            f"{lab.pattern!r} (leave such files out: [source] exclude, or "
+                            "[labels] unlisted = \"drop\")", where)
         g = m.groupdict()
         got[s] = (_name(m.group("action"), "action", s, where),
                   _name(g.get("style"), "style", s, where),
@@ -188,11 +193,32 @@ def _from_names(lab: LabelSpec, stems: list[str], where) -> dict[str, tuple]:
     return got
 
 
-def labels_for(spec: DatasetSpec, spec_dir: Path, stems: list[str]):
-    """(labels, styles, class names, style names, subjects, unused label rows) of the clips
-    ``stems`` (every name checked: a non-empty string, each clip labelled once, classes and
-    styles unique and used; ``subjects`` a name per clip or None; the unused rows: side-file
-    clips that name no clip of the source)."""
+class Labels(NamedTuple):
+    """What :func:`labels_for` makes of the clips: the first six fields describe the *kept*
+    clips (those of a listed class that the labels name), in the order given."""
+
+    labels: np.ndarray          # (n,) class index per kept clip
+    styles: np.ndarray          # (n,) style index per kept clip, -1 for none
+    classes: list[str]
+    style_names: list[str]      # [] when no clip has a style
+    subjects: list              # a name per kept clip, or None
+    unused_rows: list[str]      # side-file clips that name no clip of the source
+    kept: list[int]             # positions in the given stems of the kept clips
+    dropped: dict[str, int]     # clips of an action not in [labels] classes, per action
+    unlisted: list[str]         # clips the labels do not name (unlisted = "drop")
+
+
+def labels_for(spec: DatasetSpec, spec_dir: Path, stems: list[str], *,
+               strict_classes: bool = True) -> Labels:
+    """The labels of the clips ``stems`` (every name checked: a non-empty string, each clip
+    labelled once, classes and styles unique and used; ``subjects`` a name per clip or None;
+    the unused rows: side-file clips that name no clip of the source).
+
+    Two ways a clip is left out, by design and counted (issue 28): its action is not one of
+    a ``[labels] classes`` list that names a subset of the actions, or the labels do not name
+    it (no side-file row, a file name the pattern does not match) under ``[labels] unlisted =
+    "drop"`` (the default, ``"error"``, refuses such a clip as before).  A listed class with
+    no clip is refused unless ``strict_classes`` is False (``repro data check`` reports it)."""
     lab = spec.labels
     got: dict[str, tuple[str, str | None, str | None]] = {}
     where = spec_dir / (lab.file or spec.source.path)
@@ -203,35 +229,46 @@ def labels_for(spec: DatasetSpec, spec_dir: Path, stems: list[str]):
     else:
         table = _side_table(lab, where)
         for s in stems:
-            if s not in table:
-                raise DataError(f"clip {s!r} has no label", where)
-            got[s] = table[s]
+            if s in table:
+                got[s] = table[s]
+            elif lab.unlisted == "error":
+                raise DataError(f"clip {s!r} has no label (label it, leave its file out with "
+                                "[source] exclude, or set [labels] unlisted = \"drop\")", where)
         unused_rows = sorted(set(table) - set(stems))
-    subjects = [got[s][2] for s in stems]
-    if spec.split.by == "subject" and any(x is None for x in subjects):
-        missing = next(s for s in stems if got[s][2] is None)
-        raise DataError(f"clip {missing!r} has no subject; [split] by = 'subject' needs one "
-                        "for every clip", where)
     for what, given in (("classes", lab.classes), ("styles", lab.styles)):
         if given is not None and len(set(given)) != len(given):
             raise DataError(f"[labels] {what} repeats a name: {given}", spec_dir)
+    unlisted = [s for s in stems if s not in got]
     classes = list(lab.classes) if lab.classes else sorted({a for a, _, _ in got.values()})
-    style_vals = {st for _, st, _ in got.values() if st is not None}
+    cidx = {c: i for i, c in enumerate(classes)}
+    dropped = dict(sorted(collections.Counter(
+        a for a, _, _ in got.values() if a not in cidx).items()))
+    kept = [i for i, s in enumerate(stems) if s in got and got[s][0] in cidx]
+    stems = [stems[i] for i in kept]
+    for group, at in (("subject", 2), ("style", 1)):
+        if spec.split.by == group:
+            missing = next((s for s in stems if got[s][at] is None), None)
+            if missing is not None:
+                raise DataError(f"clip {missing!r} has no {group}; [split] by = {group!r} "
+                                "needs one for every clip", where)
+    subjects = [got[s][2] for s in stems]
+    style_vals = {st for s in stems for st in [got[s][1]] if st is not None}
     styles = list(lab.styles) if lab.styles else sorted(style_vals)
-    cidx, sidx = {c: i for i, c in enumerate(classes)}, {s: i for i, s in enumerate(styles)}
+    sidx = {s: i for i, s in enumerate(styles)}
     labels, style_ids = [], []
     for s in stems:
         a, st, _ = got[s]
-        if a not in cidx:
-            raise DataError(f"clip {s!r}: action {a!r} is not one of the classes {classes}",
-                            where)
         if st is not None and st not in sidx:
             raise DataError(f"clip {s!r}: style {st!r} is not one of {styles}", where)
         labels.append(cidx[a])
         style_ids.append(-1 if st is None else sidx[st])
-    unused = [c for c in classes if c not in {got[s][0] for s in stems}]
-    if unused:
+    present = {got[s][0] for s in stems}
+    unused = [c for c in classes if c not in present]
+    if unused and strict_classes:
         raise DataError(f"class(es) {unused} have no clip (remove them from [labels] classes)",
                         where)
-    return (np.array(labels, np.int64), np.array(style_ids, np.int64), classes,
-            styles if style_vals else [], subjects, unused_rows)
+    if not stems:
+        raise DataError("no clip is left once the labels are applied (every clip dropped)",
+                        where)
+    return Labels(np.array(labels, np.int64), np.array(style_ids, np.int64), classes,
+                  styles if style_vals else [], subjects, unused_rows, kept, dropped, unlisted)

@@ -18,10 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from repro.data.dataset_labels import clip_stem, labels_for
+from repro.data.dataset_labels import clip_stem
 from repro.data.dataset_spec import (FPS_RTOL, MAX_LABELS_BYTES, POSITION_TOL_M,
                                      PREPARE_VERSION, DatasetSpec, SkeletonSpec,
-                                     clip_pattern, escape_name, key_material,
+                                     escape_name, is_excluded, key_material,
                                      load_dataset_spec, naming_material, role_of, spec_key)
 from repro.data.prepare_caps import FrameBudget, check_finite, joints_f32
 from repro.data.prepare_caps import resample_clip as resample_long
@@ -29,16 +29,20 @@ from repro.errors import DataError, MissingDataError
 
 
 # ------------------------------------------------------------------------ reading files
-def _iter_files(source: Path, spec: DatasetSpec, skipped: "SkippedFiles | None" = None):
+def _iter_files(source: Path, spec: DatasetSpec, skipped: "SkippedFiles | None" = None,
+                keep: set[str] | None = None):
     """(label, bytes) of the clip files (:func:`repro.data.dataset_spec.role_of`: the
-    ``include`` pattern, case-insensitive, over the path inside the source; never the ASF) in a
-    folder or tar archive, read as the built-in stand-in's are
+    ``include`` patterns, case-insensitive, over the path inside the source, less the
+    ``exclude`` ones; never the ASF; only those in ``keep``, paths inside the source, when
+    given) in a folder or tar archive, read as the built-in stand-in's are
     (:func:`repro.data.sources.iter_source`: one decompression pass, its size caps, no links
-    out of a folder).  ``skipped`` is told the path of each file (not folder) not read."""
+    out of a folder).  ``skipped`` is told the path of each file (not folder) not read that is
+    no clip (a clip a class subset drops is counted on the card by class)."""
     from repro.data.sources import iter_source
 
     def kind(name: str) -> str | None:
-        return "clip" if role_of(spec, name) == "clip" else None
+        return "clip" if role_of(spec, name) == "clip" and (keep is None or name in keep) \
+            else None
 
     def skip(name: str) -> None:  # the ASF is read (by _read_asf), not skipped
         if role_of(spec, name) is None:
@@ -61,13 +65,17 @@ class SkippedFiles:
     case) are not counted.  Folders never reach it (:func:`repro.data.sources.iter_source`
     tells them apart by the entry's type)."""
 
-    def __init__(self, known: set[str] = frozenset()):
+    def __init__(self, known: set[str] = frozenset(), spec: DatasetSpec | None = None):
         self.known, self.count, self._first = known, 0, []
+        self.spec, self.excluded = spec, 0
 
     def add(self, name: str) -> None:
         import bisect
 
         if name.strip("/").lower() in self.known:
+            return
+        if self.spec is not None and is_excluded(self.spec, name):
+            self.excluded += 1  # left out on purpose: counted, not listed
             return
         self.count += 1
         if len(self._first) < SKIPPED_SHOWN or name < self._first[-1]:
@@ -267,16 +275,13 @@ def _posture_checks(skel, body, joints: list, fps: float, spec_path: Path) -> li
     return []
 
 
-def _test_warnings(classes, labels, split) -> list[str]:
-    """A class with no test clip cannot be scored on the test split: said on the card."""
-    none = [c for i, c in enumerate(classes) if not ((labels == i) & (split == 1)).any()]
-    return [f"class(es) {', '.join(none)} have no test clip"] if none else []
-
-
 def _card(spec: DatasetSpec, classes, styles, labels, lengths, fps, subjects,
-          skipped: SkippedFiles, unused_rows: list[str], warnings: list[str]) -> dict:
+          skipped: SkippedFiles, unused_rows: list[str], warnings: list[str],
+          dropped: dict[str, int], unlisted: list[str]) -> dict:
     """The generated card: counts, per-class clips / frames / durations, subjects, and what the
-    source held that was not read (files no pattern took, label rows naming no clip)."""
+    source held that was not read (files no pattern took or an ``exclude`` left out, label rows
+    naming no clip, clips of classes a ``classes`` subset drops, clips the labels do not name
+    under ``unlisted = "drop"``)."""
     per_class = {}
     for i, n in enumerate(classes):
         ls = lengths[labels == i]
@@ -289,7 +294,20 @@ def _card(spec: DatasetSpec, classes, styles, labels, lengths, fps, subjects,
             "subjects": len(named), "per_class": per_class,
             "skipped_files": {"count": skipped.count, "first": skipped.shown()},
             "unused_label_rows": {"count": len(unused_rows), "first": unused_rows[:10]},
+            **({"excluded_files": skipped.excluded} if skipped.excluded else {}),
+            **({"dropped_clips": {"by_class": dict(dropped), "count": sum(dropped.values())}}
+               if dropped else {}),
+            **({"unlisted_clips": {"count": len(unlisted), "first": unlisted[:10]}}
+               if unlisted else {}),
             "warnings": list(warnings), "license": spec.license, "credit": spec.credit, "description": spec.description}
+
+
+def _split_method(spec: DatasetSpec) -> str:
+    """The split's name in ``meta.json`` (the wording before issue 28 kept for its splits)."""
+    sp = spec.split
+    if sp.grouped_by_action:
+        return f"{sp.by}s whole to test, every action on both sides"
+    return "subjects whole to test" if sp.by == "subject" else "stratified(action, style)"
 
 
 def prepare_dataset(spec_path: str | Path, *, force: bool = False):
@@ -302,7 +320,7 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
 
     from repro.data.cache import (POINTER, PrepareResult, dataset_dir, valid_cache, write_cache,
                                   write_json_atomic)
-    from repro.data.splits import stratified_split, subject_split
+    from repro.data.dataset_clips import select_clips
     from repro.keys import content_key
     from repro.motion.skeleton import Skeleton
 
@@ -314,7 +332,9 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
     if not source.exists():
         raise MissingDataError("the spec's source folder or archive is not there", source)
     fmt = spec.source.format
-    pattern = clip_pattern(spec)
+    # the clips, their labels and split from the file names alone: a split that leaves a
+    # class without a test or training clip is refused before any clip is parsed (issue 28)
+    chosen = select_clips(spec, spec_path, source)
     digest = hashlib.sha256()
     asf = None
     if fmt == "asf_amc":
@@ -354,9 +374,9 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
         known = {p.relative_to(source.resolve()).as_posix().lower()
                  for p in (here / (spec.labels.file or ""), spec_path.resolve())
                  if source.is_dir() and p.is_file() and p.is_relative_to(source.resolve())}
-        clips, skipped = [], SkippedFiles(known)  # a count and the first names: bounded
+        clips, skipped = [], SkippedFiles(known, spec)  # a count and the first names: bounded
         budget = FrameBudget(spec.frames.resample_to, spec.frames.fps, spec.limits)  # caps
-        for label, data in _iter_files(source, spec, skipped):  # converted as they stream
+        for label, data in _iter_files(source, spec, skipped, chosen.kept_rel):  # as they stream
             clips.append(_convert_bvh(label, data, sk, budget) if fmt == "bvh" else
                          _convert_amc(label, data, asf, sk, spec.frames.fps, budget))
             # scaled, turned, resampled and cast to float32 at once: what the clips hold until
@@ -364,8 +384,11 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
             # rate was held for every clip: 4 × the frames counted, at twice the bytes)
             _finish_clip(clips[-1], spec, spec.frames.fps if spec.frames.fps is not None
                          else round(clips[0]["fps"], 3))
-        if not clips:
-            raise DataError(f"no file matches {pattern!r} (case-insensitive)", source)
+        order = sorted(range(len(clips)), key=lambda i: clips[i]["label"])
+        stems = [clip_stem(clips[i]["label"], source) for i in order]
+        if stems != chosen.stems:  # the clips listed before parsing are the ones read
+            raise DataError("the source's clip files changed while it was read; run again",
+                            source)
         first = clips[0]
         for c in clips[1:]:
             if c["names"] != first["names"] or c["parents"] != first["parents"]:
@@ -392,17 +415,10 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
                         None if sk.hips is None else tuple(sk.hips), sk.up_joint)
         if spec.frames.resample_to is not None:
             fps = float(spec.frames.resample_to)
-        order = sorted(range(len(clips)), key=lambda i: clips[i]["label"])
-        stems = [clip_stem(clips[i]["label"], source) for i in order]
-        seen: dict[str, str] = {}
-        for i, st in zip(order, stems):
-            if st in seen:
-                raise DataError(f"two clips share the name {st!r}: {seen[st]} and "
-                                f"{clips[i]['label']} (clip names must be unique)", source)
-            seen[st] = clips[i]["label"]
         body = _body(skel, spec_path)
-        labels, styles, classes, style_names, subjects, unused_rows = labels_for(
-            spec, here, stems)
+        lab = chosen.labels
+        labels, styles, classes, style_names, subjects = (lab.labels, lab.styles, lab.classes,
+                                                          lab.style_names, lab.subjects)
         with np.errstate(over="ignore", invalid="ignore"):  # overflow: check_finite says it
             # float64 copies dropped as they are cast (memory: docs/data.md, Frames and memory)
             quats = [np.asarray(clips[i].pop("quats"), np.float32) for i in order]
@@ -412,22 +428,9 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
             check_finite(clips[i]["label"], rotations=q, root=r, joints=j)
         lengths = np.array([q.shape[0] for q in quats], np.int64)
         starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
-        if spec.split.by == "subject":
-            try:
-                split = subject_split(subjects, test_fraction=spec.split.test_fraction,
-                                      seed=spec.split.seed)
-            except ValueError as e:
-                raise DataError(str(e), spec_path) from None
-        else:
-            split = stratified_split(labels, styles, test_fraction=spec.split.test_fraction,
-                                     seed=spec.split.seed)
+        split = chosen.split
         _check_expect(spec, spec_path, len(stems), int(lengths.sum()), skel.n_joints)
         checks = _posture_checks(skel, body, joints, fps, spec_path)
-        bare = [classes[c] for c in range(len(classes)) if not ((labels == c) & (split == 0)).any()]
-        if bare:
-            raise DataError(f"class(es) {', '.join(map(repr, bare))} have no training clip after "
-                            f"the split (test_fraction {spec.split.test_fraction}); add clips or "
-                            "lower test_fraction", spec_path)
         arrays = {"rotations": np.concatenate(quats), "root": np.concatenate(roots),
                   "joints": np.concatenate(joints), "starts": starts, "lengths": lengths,
                   "labels": labels, "styles": styles, "split": split}
@@ -440,10 +443,10 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
                 "rotations": f"local, xyzw, as the {fmt} files give them",
                 "label_names": classes, "style_names": style_names, "clip_names": stems,
                 **({"clip_subjects": subjects} if any(x is not None for x in subjects) else {}),
-                "split": {"method": "subjects whole to test" if spec.split.by == "subject"
-                          else "stratified(action, style)", **spec.split.model_dump()},
+                "split": {"method": _split_method(spec), **spec.split.model_dump(
+                    exclude={"stratify"} if spec.split.stratify is None else set())},
                 "card": _card(spec, classes, style_names, labels, lengths, fps, subjects,
-                              skipped, unused_rows, checks + _test_warnings(classes, labels, split)),
+                              skipped, lab.unused_rows, checks, lab.dropped, lab.unlisted),
                 "stats": {"clips": len(stems), "frames": int(lengths.sum())},
                 "repro_version": __version__, "dataset_spec_version": PREPARE_VERSION}
         write_cache(root, fp, arrays, meta)

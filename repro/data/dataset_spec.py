@@ -12,14 +12,17 @@ the skeleton's conventions, the frame rate and the split::
     path = "mocap"                      # a folder or a .tar/.tar.gz/.tar.xz archive, relative
     format = "bvh"                      # to the spec file; "bvh" or "asf_amc"
     include = "*.bvh"                   # clip files, fnmatch over the path inside the source
-                                        # ("*" crosses folders; default *.bvh / *.amc)
+                                        # ("*" crosses folders; default *.bvh / *.amc); a list
+    # exclude = ["*_calib*.bvh"]        # files include takes that are not read
     # asf = "skeleton.asf"              # asf_amc: the one skeleton every AMC clip moves
 
     [labels]
     from = "filename"                   # "filename" (regex), "csv" or "json" (a side file)
     pattern = '^(?P<subject>s\\d+)_(?P<action>[a-z-]+)_\\d+$'   # over the file stem
     # file = "labels.csv"               # csv: columns clip, action[, style][, subject]
-    # classes = ["walk", "jump"]        # the tag order (default: sorted names found)
+    # classes = ["walk", "jump"]        # the tag order (default: sorted names found); a
+                                        # subset drops the other actions' clips
+    # unlisted = "drop"                 # clips the labels do not name: left out ("error")
 
     [skeleton]
     up_axis = "y"                       # "y" or "z" (z-up data is turned to y-up)
@@ -35,7 +38,8 @@ the skeleton's conventions, the frame rate and the split::
     [split]
     test_fraction = 0.2                 # stratified by action (and style when labelled)
     seed = 0
-    # by = "subject"                    # whole subjects to test (needs subject labels)
+    # by = "subject"                    # whole subjects (or "style": styles) to test
+    # stratify = "action"               # by subject: every action on both sides
 
     [expect]                            # optional facts checked at prepare (and on reuse)
     # clips = 120
@@ -56,7 +60,8 @@ import re
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (BaseModel, ConfigDict, Field, ValidationError, field_validator,
+                      model_validator)
 
 from repro.data.label_pattern import (MAX_PATTERN_CHARS, MAX_PATTERN_DEPTH,  # noqa: F401
                                       MAX_PATTERN_REPEAT, pattern_problem)
@@ -122,16 +127,37 @@ def _no_controls(v, what: str):
 class SourceSpec(_Strict):
     path: str = Field(description="folder or tar archive, relative to the spec file")
     format: Literal["bvh", "asf_amc"] = "bvh"
-    include: str | None = Field(None, description="fnmatch pattern of clip files over the path "
-                                "inside the source, case-insensitive ('*' crosses folders; "
-                                "default *.bvh / *.amc)")
+    include: str | list[str] | None = Field(
+        None, description="fnmatch pattern (or list of patterns) of clip files over the path "
+        "inside the source, case-insensitive ('*' crosses folders; default *.bvh / *.amc)")
+    exclude: str | list[str] | None = Field(
+        None, description="fnmatch pattern (or list) of files the include patterns take but "
+        "that are not read (issue 28)")
     asf: str | None = Field(None, description="asf_amc: the ASF skeleton file, its path inside "
                             "the source folder or archive (case-insensitive)")
 
-    @field_validator("path", "include")
+    @field_validator("path")
     @classmethod
     def _plain(cls, v):
         return _no_controls(v, "a path")
+
+    @field_validator("include", "exclude")
+    @classmethod
+    def _patterns(cls, v):
+        """A list of one pattern is that pattern (one spelling, one key); an empty list or an
+        empty pattern is refused (it would take nothing, or everything, silently)."""
+        _no_controls(v, "a path")
+        if isinstance(v, list):
+            if not v:
+                raise ValueError("give at least one pattern (or leave the field out)")
+            if len(set(v)) != len(v):
+                raise ValueError("a pattern is listed twice")
+            if len(v) == 1:
+                v = v[0]
+        for x in [v] if isinstance(v, str) else (v or []):
+            if not x.strip():
+                raise ValueError("a pattern may not be empty")
+        return v
 
     @field_validator("asf")
     @classmethod
@@ -151,8 +177,13 @@ class LabelSpec(_Strict):
     pattern: str | None = Field(None, description="regex over the file stem with group "
                                 "'action' (and optionally 'style', 'subject')")
     file: str | None = Field(None, description="csv/json side file, relative to the spec")
-    classes: list[str] | None = None
+    classes: list[str] | None = Field(None, description="the tag order; a subset of the "
+                                      "actions found drops the clips of every other action")
     styles: list[str] | None = None
+    unlisted: Literal["error", "drop"] = Field(
+        "error", description="a clip the labels do not name (no row in the side file, a file "
+        "name the pattern does not match): 'error' refuses the data set, 'drop' leaves the "
+        "clip out (counted on the card)")
 
     @field_validator("file")
     @classmethod
@@ -219,9 +250,25 @@ class FramesSpec(_Strict):
 class SplitSpec(_Strict):
     test_fraction: float = Field(0.2, gt=0, lt=1)
     seed: int = 0
-    by: Literal["clip", "subject"] = Field("clip", description="'clip': stratified by action "
-                                           "(and style); 'subject': whole subjects go to test "
-                                           "(needs subject labels)")
+    by: Literal["clip", "subject", "style"] = Field(
+        "clip", description="'clip': stratified by action (and style); 'subject' / 'style': "
+        "whole subjects / styles go to test (needs subject / style labels)")
+    stratify: Literal["action"] | None = Field(
+        None, description="with by = 'subject': choose the whole subjects so that every action "
+        "has test and training clips (repro.data.splits.group_split); by = 'style' always does")
+
+    @model_validator(mode="after")
+    def _stratify_needs_groups(self):
+        if self.stratify is not None and self.by == "clip":
+            raise ValueError("stratify is for by = 'subject' or 'style' (by = 'clip' is "
+                             "stratified by action and style already)")
+        return self
+
+    @property
+    def grouped_by_action(self) -> bool:
+        """Whether the split keeps groups whole *and* covers every action
+        (:func:`repro.data.splits.group_split`)."""
+        return self.by == "style" or (self.by == "subject" and self.stratify == "action")
 
 
 class ExpectSpec(_Strict):
@@ -271,7 +318,8 @@ class DatasetSpec(_Strict):
 #: fields added after the first data-set specs were prepared: left out of the key material
 #: while at their defaults, so a spec that does not use them keeps its fingerprint
 _LATER_DEFAULTS = {("skeleton", "hips"): None, ("skeleton", "up_joint"): None,
-                   ("split", "by"): "clip"}
+                   ("split", "by"): "clip", ("source", "exclude"): None,
+                   ("labels", "unlisted"): "error", ("split", "stratify"): None}
 #: the built-in stand-in's own declaration (:mod:`repro.data.bandai` reads its facts from it)
 BUILTIN_SPECS = {"bandai2": "bandai2.toml"}
 
@@ -304,9 +352,16 @@ def naming_material(source: Path) -> dict:
         return {}
 
 
-def clip_pattern(spec: DatasetSpec) -> str:
-    """The spec's ``include`` pattern, or the format's default."""
-    return spec.source.include or ("*.bvh" if spec.source.format == "bvh" else "*.amc")
+def clip_patterns(spec: DatasetSpec) -> list[str]:
+    """The spec's ``include`` patterns, or the format's default."""
+    inc = spec.source.include or ("*.bvh" if spec.source.format == "bvh" else "*.amc")
+    return [inc] if isinstance(inc, str) else list(inc)
+
+
+def exclude_patterns(spec: DatasetSpec) -> list[str]:
+    """The spec's ``exclude`` patterns (none by default)."""
+    exc = spec.source.exclude
+    return [] if exc is None else [exc] if isinstance(exc, str) else list(exc)
 
 
 def matches(name: str, pattern: str) -> bool:
@@ -322,7 +377,16 @@ def role_of(spec: DatasetSpec, name: str) -> str | None:
     "clip", or None (not read)."""
     if spec.source.asf and name.strip("/").lower() == spec.source.asf.lower():
         return "asf"
-    return "clip" if matches(name, clip_pattern(spec)) else None
+    if not any(matches(name, p) for p in clip_patterns(spec)):
+        return None
+    return None if any(matches(name, p) for p in exclude_patterns(spec)) else "clip"
+
+
+def is_excluded(spec: DatasetSpec, name: str) -> bool:
+    """Whether the file ``name`` (its path inside the source) is one an ``include`` pattern
+    takes and an ``exclude`` pattern leaves out."""
+    return any(matches(name, p) for p in exclude_patterns(spec)) and \
+        any(matches(name, p) for p in clip_patterns(spec))
 
 
 def builtin_spec_path(name: str) -> Path:
@@ -358,9 +422,11 @@ def load_dataset_spec(path: str | Path) -> DatasetSpec:
         raise SpecError(f"labels from {lab.from_!r} need a 'file'", path, "labels")
     if spec.source.format == "asf_amc" and not spec.source.asf:
         raise SpecError("format 'asf_amc' needs 'asf' (the skeleton file)", path, "source")
-    if spec.split.by == "subject" and not _has_subjects(lab):
-        raise SpecError("split by 'subject' needs subject labels: a (?P<subject>...) group in "
-                        "the pattern, or a subject column/key in the labels file", path, "split")
+    for group in ("subject", "style"):
+        if spec.split.by == group and not _has_group(lab, group):
+            raise SpecError(f"split by {group!r} needs {group} labels: a (?P<{group}>...) group "
+                            f"in the pattern, or a {group} column/key in the labels file", path,
+                            "split")
     from repro.data.registry import builtin_names
 
     if spec.name in builtin_names() and not (
@@ -370,9 +436,10 @@ def load_dataset_spec(path: str | Path) -> DatasetSpec:
     return spec
 
 
-def _has_subjects(lab: LabelSpec) -> bool:
-    """Whether the labels can name subjects (a side file may; checked again at prepare)."""
-    return lab.from_ != "filename" or "subject" in re.compile(lab.pattern or "").groupindex
+def _has_group(lab: LabelSpec, group: str) -> bool:
+    """Whether the labels can name ``group`` (subject, style) for each clip (a side file may;
+    checked again at prepare)."""
+    return lab.from_ != "filename" or group in re.compile(lab.pattern or "").groupindex
 
 
 # ------------------------------------------------------------------------ registration

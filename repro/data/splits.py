@@ -9,11 +9,14 @@ so adding a class never reshuffles another):
 - :func:`subject_split`: whole subjects to test (a declared data set's ``[split] by =
   "subject"``): subjects in a seeded order join the test side until it holds at least
   ``round(n * test_fraction)`` clips, so no subject is on both sides.
+- :func:`group_split`: whole groups (styles or subjects) to test, chosen so that every action
+  has test *and* training clips (a declared data set's ``[split] by = "style"``, or ``by =
+  "subject"`` with ``stratify = "action"``; algorithm in its docstring).
 - :func:`marionette_split`: Neural Marionette Sec. 5.1.1 ("for every action class, we randomly
   select 20% to 100 samples to construct a testing set and use the rest data for training"),
   read as ``min(cap, round(0.2 * n_class))`` test clips per class, classes only (protocols.md §5).
 
-Both return an ``int8`` array, 0 = train and 1 = test (:data:`~repro.data.clipset.TRAIN`,
+Each returns an ``int8`` array, 0 = train and 1 = test (:data:`~repro.data.clipset.TRAIN`,
 :data:`~repro.data.clipset.TEST`); :func:`with_split` puts one on a ClipSet.
 """
 
@@ -84,6 +87,80 @@ def subject_split(subjects, *, test_fraction: float = DEFAULT_TEST_FRACTION,
             break
         test.add(n)
     return np.array([TEST if x in test else TRAIN for x in subjects], dtype=np.int8)
+
+
+class NoGroupSplit(ValueError):
+    """No choice of whole groups gives every action a test and a training clip; ``actions``:
+    the label ids left without a test clip, ``single``: those whose clips all lie in one
+    group (no choice can put them on both sides)."""
+
+    def __init__(self, message: str, actions: list[int], single: list[int]):
+        super().__init__(message)
+        self.actions, self.single = actions, single
+
+
+def group_split(labels, groups, *, test_fraction: float = DEFAULT_TEST_FRACTION,
+                seed: int = DEFAULT_SPLIT_SEED) -> np.ndarray:
+    """A seeded split that keeps each group (``groups``: (N,) names, a style or a subject per
+    clip) whole and gives every action of ``labels`` (N,) test and training clips, with about
+    ``round(N·f)`` clips in test.
+
+    The groups, sorted by name, are put in a seeded order (``numpy_rng(seed, "group_split",
+    f)``).  *Cover*: while an action has no test clip, the group (not yet in test) that gives
+    test clips to the most such actions goes to test, the first in the seeded order on a tie,
+    skipping any group whose move would leave an action without a training clip.  *Fill*: the
+    remaining groups, in the seeded order, go to test while the test side holds fewer than
+    ``round(N·f)`` clips, each only when it brings the count closer to that target and leaves
+    every action a training clip.  :class:`NoGroupSplit` (a ValueError) when the cover cannot
+    be completed: an action whose clips all lie in one group can never be on both sides.
+    Clip order does not matter (a group's clips move together); the same inputs and seed give
+    the same split, byte for byte."""
+    _check_fraction(test_fraction)
+    labels = np.asarray(labels, np.int64)
+    groups = [str(x) for x in groups]
+    if len(groups) != labels.shape[0]:
+        raise ValueError("labels and groups differ in length")
+    names = sorted(set(groups))
+    index = {n: i for i, n in enumerate(names)}
+    gidx = np.array([index[g] for g in groups], np.int64)
+    actions = np.unique(labels).tolist()
+    # counts[g, a]: clips of action a in group g
+    counts = np.zeros((len(names), len(actions)), np.int64)
+    np.add.at(counts, (gidx, np.searchsorted(actions, labels)), 1)
+    total = counts.sum(0)
+    order = numpy_rng(seed, "group_split", test_fraction).permutation(len(names)).tolist()
+    in_test = np.zeros(len(names), bool)
+
+    def keeps_train(g: int) -> bool:
+        return bool((counts[in_test].sum(0) + counts[g] < total).all())
+
+    while True:
+        covered = counts[in_test].sum(0) > 0
+        if covered.all():
+            break
+        best, gain = None, 0
+        for g in order:
+            if in_test[g] or not keeps_train(g):
+                continue
+            n = int(((counts[g] > 0) & ~covered).sum())
+            if n > gain:
+                best, gain = g, n
+        if best is None:
+            missing = [actions[a] for a in np.flatnonzero(~covered).tolist()]
+            single = [actions[a] for a in range(len(actions)) if (counts[:, a] > 0).sum() < 2]
+            raise NoGroupSplit("no choice of whole groups gives every action a test and a "
+                               "training clip", missing, single)
+        in_test[best] = True
+    target = _n_test(labels.shape[0], test_fraction)
+    for g in order:
+        have = int(counts[in_test].sum())
+        if have >= target:
+            break
+        if in_test[g] or not keeps_train(g):
+            continue
+        if abs(have + int(counts[g].sum()) - target) < abs(have - target):
+            in_test[g] = True
+    return np.where(in_test[gidx], TEST, TRAIN).astype(np.int8)
 
 
 def marionette_split(labels, *, seed: int = DEFAULT_SPLIT_SEED, fraction: float = 0.2,

@@ -283,6 +283,10 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
     specs = list({s.id: s for s in (_spec(n) for n in names)}.values())
     plans = [build_plan(spec, sc, dataset, seeds, retrain, budget, evaluator_seed)
              for spec in specs]
+    from repro.engine.split_check import check_protocol_splits
+
+    for p in plans:  # a class short of clips under a protocol's split: said before training
+        check_protocol_splits(p)
     from repro.engine.plan import check_force
 
     check_force(force, [j for p in plans for rp in p.rows for j in _row_targets(rp)])
@@ -523,6 +527,9 @@ def plan_table(name: str, *, scale: str = "quick", dataset: str | None = None, w
 
     spec = _spec(name)
     plan = build_plan(spec, _scale(scale, dataset), dataset, seeds, retrain)
+    from repro.engine.split_check import check_protocol_splits
+
+    check_protocol_splits(plan)
     from repro.engine.plan import check_force
 
     check_force(force, plan.jobs())

@@ -112,8 +112,12 @@ def real_rows(dataset: str, scale: str = "medium", replicates: int | None = None
     for split, name in ((TEST, "test"), (TRAIN, "train")):
         present = np.unique(clipset.labels[clipset.indices(split=split)])
         if present.size != clipset.n_classes:
-            raise DataError(f"data set {dataset!r}: the {name} split lacks classes "
-                            f"{sorted(set(range(clipset.n_classes)) - set(present.tolist()))}")
+            missing = sorted(set(range(clipset.n_classes)) - set(present.tolist()))
+            raise DataError(f"data set {dataset!r}: the {name} split lacks "
+                            f"{'class' if len(missing) == 1 else 'classes'} "
+                            f"{', '.join(clipset.label_names[c] for c in missing)} (by index "
+                            f"{missing}); drop them ([labels] classes in the data set's spec) "
+                            "or give them more clips")
     per_rep = [real_replicate(evaluator, clipset, rs.per_class, seed, r) for r in range(reps)]
     n_boot = _bootstrap_resamples(scale)
     metrics = {m: _summary([p[m] for p in per_rep], rs.ci_method, rs.bootstrap, n_boot,
