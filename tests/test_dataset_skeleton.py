@@ -467,3 +467,29 @@ def test_strips_draw_cmu_sides_in_the_side_colours():
     assert count(sided, LEFT_RGB) > 20 and count(sided, RIGHT_RGB) > 20
     with pytest.raises(ValueError, match="sides"):
         render_strip([panel], parents, names, sides=[0, 1])
+
+
+def test_a_runs_strips_take_the_sides_of_its_skeletons_hips(tmp_path, monkeypatch):
+    """``write_strips`` colours a skeleton with declared hips (a CMU spec's) by their naming."""
+    from types import SimpleNamespace
+
+    from PIL import Image
+
+    from repro.motion.skeleton import Skeleton
+    from repro.render import Panel
+    from repro.render.strips import LEFT_RGB
+    from repro.report import strip_sets
+
+    names = ("root", "lfemur", "ltibia", "rfemur", "rtibia", "thorax", "head")
+    parents = (-1, 0, 1, 0, 3, 0, 5)
+    rest = np.array([[0, 1, 0], [0.1, 0.9, 0.3], [0.1, 0.5, 0.3], [-0.1, 0.9, -0.3],
+                     [-0.1, 0.5, -0.3], [0, 1.4, 0], [0, 1.7, 0]], float)
+    sk = Skeleton(names, parents, np.zeros((7, 3)), ("lfemur", "rfemur"))
+    strip = strip_sets.Strip("s", "t", [Panel("cmu", np.repeat(rest[None], 4, 0))], [0, 3],
+                             {"band": 0})
+    monkeypatch.setattr(strip_sets, "table_strips", lambda rs, **kw: ([strip], []))
+    rs = SimpleNamespace(bands=[SimpleNamespace(items=SimpleNamespace(skeleton=sk))],
+                         spec=SimpleNamespace(id="marionette/table1"), run_id="r")
+    strip_sets.write_strips(rs, tmp_path, formats=("png",))
+    rgb = np.asarray(Image.open(tmp_path / "s.png").convert("RGB"), int)
+    assert (np.abs(rgb - LEFT_RGB).sum(-1) == 0).sum() > 20
