@@ -330,11 +330,11 @@ def test_amc_frames_are_capped_as_they_are_read(monkeypatch):
         asf_amc.parse_amc(AMC, "walk.amc", asf, frame_check=check)
     assert seen == [1, 2, 3, 4]  # refused as frame 4 begins, not after the whole file
     # and prepare passes its budget to the AMC reader
-    from repro.data.dataset_prepare import _convert_amc
+    from repro.data.dataset_skeleton import convert_amc
     from repro.data.dataset_spec import SkeletonSpec
 
     with pytest.raises(DataError, match="walk.amc: 4 frames; .*MAX_CLIP_FRAMES"):
-        _convert_amc("walk.amc", AMC, asf, SkeletonSpec(), None,
+        convert_amc("walk.amc", AMC, asf, SkeletonSpec(), None,
                      prepare_caps.FrameBudget(None, None))
 
 

@@ -402,7 +402,14 @@ def parse_amc(data: bytes | str, source: str | Path, asf: Asf, *, frame_check=No
     frame_lines: list[int] = []
     frames: list[dict[str, tuple[float, ...]]] = []
 
+    unknown: dict[str, int] = {}  # bones of the first frame the ASF lacks -> their line
+
     def check_frame() -> None:
+        if len(frames) == 1:  # the first frame shows the clip's bone set: all of a misfit said
+            missing = [n for n in needed if n not in frames[0]]
+            if unknown or missing:
+                raise DataError(bone_misfit(asf, list(unknown), missing, numbers[0]), src,
+                                min(unknown.values()) if unknown else frame_lines[0])
         for n in needed if frames else ():
             if n not in frames[-1]:
                 raise DataError(f"frame {numbers[-1]} gives no values for bone {n!r}", src,
@@ -439,6 +446,9 @@ def parse_amc(data: bytes | str, source: str | Path, asf: Asf, *, frame_check=No
             if not frames:
                 raise DataError("bone values before the first frame number", src, ln)
             if name not in counts:
+                if len(frames) == 1:  # said with every other misfit when the frame ends
+                    unknown.setdefault(name, ln)
+                    continue
                 raise DataError(f"unknown bone {_q(name)} (not in the ASF {asf.source})", src, ln)
             if name in frames[-1]:
                 raise DataError(f"bone {name!r} is given twice in frame {numbers[-1]}", src, ln)
@@ -451,6 +461,21 @@ def parse_amc(data: bytes | str, source: str | Path, asf: Asf, *, frame_check=No
     values = {n: np.array([f[n] for f in frames], dtype=np.float64).reshape(len(frames), counts[n])
               for n in needed}
     return AmcMotion(src, angle or asf.angle_unit, full, np.array(numbers, dtype=np.int64), values)
+
+
+def bone_misfit(asf: Asf, unknown: list[str], missing: list[str], frame: int) -> str:
+    """The message of an AMC clip whose bones (its first frame's) do not fit ``asf``: every
+    bone it names that the ASF lacks, and every ASF bone with dofs it gives no values for
+    (issue 28: clips paired with another subject's or another skeleton's ASF)."""
+    def bones(names: list[str]) -> str:
+        shown = ", ".join(_q(n) for n in names[:10])
+        more = f" and {len(names) - 10} more" if len(names) > 10 else ""
+        return f"bone{'s' if len(names) > 1 else ''} {shown}{more}"
+
+    parts = ([f"unknown {bones(unknown)} (not in the ASF)"] if unknown else []) + (
+        [f"frame {frame} gives no values for {bones(missing)}"] if missing else [])
+    return (f"its bones do not fit the ASF {asf.source}: " + "; ".join(parts)
+            + " (is the clip paired with the right ASF? [source] asf)")
 
 
 def read_asf(path: str | Path) -> Asf:

@@ -18,9 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
+from repro.data.dataset_asf import inner_path, read_skeleton_files
 from repro.data.dataset_labels import clip_stem
-from repro.data.dataset_spec import (FPS_RTOL, MAX_LABELS_BYTES, POSITION_TOL_M,
-                                     PREPARE_VERSION, DatasetSpec, SkeletonSpec,
+from repro.data.dataset_skeleton import convert_amc, convert_bvh, one_skeleton
+from repro.data.dataset_spec import (FPS_RTOL, MAX_LABELS_BYTES, PREPARE_VERSION, DatasetSpec,
                                      escape_name, is_excluded, key_material,
                                      load_dataset_spec, naming_material, role_of, spec_key)
 from repro.data.prepare_caps import FrameBudget, check_finite, joints_f32
@@ -44,7 +45,7 @@ def _iter_files(source: Path, spec: DatasetSpec, skipped: "SkippedFiles | None" 
         return "clip" if role_of(spec, name) == "clip" and (keep is None or name in keep) \
             else None
 
-    def skip(name: str) -> None:  # the ASF is read (by _read_asf), not skipped
+    def skip(name: str) -> None:  # the ASF is read (by read_skeleton_files), not skipped
         if role_of(spec, name) is None:
             skipped.add(name)
 
@@ -86,94 +87,6 @@ class SkippedFiles:
         """The names the card lists, control characters and bytes that are not UTF-8 escaped
         (``\\x1b``, ``\\udcff``): one compiled pattern over those few names only."""
         return [escape_name(n) for n in self._first]
-
-
-def _read_asf(source: Path, spec: DatasetSpec):
-    """(bytes, where) of the spec's ASF skeleton file inside a source folder or archive, its
-    path matched case-insensitively in both (an archive costs one more decompression pass,
-    through the same caps; a folder's file must not be a link out of it)."""
-    from repro.data.sources import MAX_MEMBER_BYTES, inside, iter_source, read_regular
-
-    if source.is_dir():
-        found = [q for q in sorted(source.rglob("*"))
-                 if role_of(spec, q.relative_to(source).as_posix()) == "asf"]
-        if not found or not found[0].is_file():
-            raise MissingDataError("the spec's ASF skeleton file is not in the source folder",
-                                   source / spec.source.asf)
-        if not inside(found[0], source):
-            raise DataError("a symbolic link that leads out of the source folder (copy the "
-                            "file in instead)", found[0])
-        return read_regular(found[0], MAX_MEMBER_BYTES, "the ASF skeleton file"), found[0]
-    for _, label, data in iter_source(source, kind_of=lambda n: role_of(spec, n) == "asf"
-                                      and "asf" or None):
-        return data, label
-    raise MissingDataError(f"the spec's ASF skeleton file {spec.source.asf!r} is not in the "
-                           "archive", source)
-
-
-def _convert_bvh(label: str, data: bytes, sk: SkeletonSpec, budget=None) -> dict:
-    """One BVH clip in the harness conventions (metres, y up; dummy root dropped); ``budget``
-    (:class:`repro.data.prepare_caps.FrameBudget`) checks its header before its frames are
-    parsed."""
-    from repro.data.bvh import parse_bvh
-
-    check = None if budget is None else (
-        lambda n, frame_time, joints: budget.check(label, n, 1.0 / frame_time, joints))
-    b = parse_bvh(data, label, check=check)
-    trans = np.asarray(b.local_translations(), np.float64)                 # (T, J, 3)
-    with np.errstate(over="ignore"):  # a root the prepared copy could not hold, refused before
-        # the rotations are converted (torch is not even loaded): 1e300 is inf in float32
-        root = trans[:, int(sk.dummy_root is not None and b.n_joints > 1)] * sk.scale
-        check_finite(label, root=root.astype(np.float32))
-    quats = np.asarray(b.local_rotations(as_quaternions=True), np.float64)  # (T, J, 4) xyzw
-    names, parents, offsets = list(b.names), list(b.parents), np.asarray(b.offsets, np.float64)
-    if sk.dummy_root is not None:
-        if names[0] != sk.dummy_root:
-            raise DataError(f"root joint is {names[0]!r}, the spec's dummy_root is "
-                            f"{sk.dummy_root!r}", label)
-        if [p for p in parents[1:] if p == 0] != [0]:
-            raise DataError(f"dummy root {sk.dummy_root!r} must have exactly one child", label)
-        if not (np.abs(offsets[0]).max() <= 1e-6 and np.abs(trans[:, 0]).max() <= 1e-6 and
-                np.abs(quats[:, 0, :3]).max() <= 1e-6):  # NaN fails (issue 29)
-            raise DataError(f"dummy root {sk.dummy_root!r} is not all zero (dropping it would "
-                            "move the body)", label)
-        names, offsets, quats, trans = names[1:], offsets[1:], quats[:, 1:], trans[:, 1:]
-        parents = [p - 1 for p in parents[1:]]
-    first = len(b.names) - len(names)
-    if not {"Xposition", "Yposition", "Zposition"} <= set(b.channels[first]):
-        raise DataError(f"root joint {names[0]!r} has no X/Y/Zposition channels", label)
-    tol = POSITION_TOL_M / sk.scale
-    for j, chans in enumerate(b.channels[first + 1:], start=1):
-        if any(c.endswith("position") for c in chans):
-            d = float(np.abs(trans[:, j] - offsets[j]).max())
-            if not d <= tol:  # NaN fails
-                raise DataError(f"position channels of {names[j]!r} move it {d:.4g} units from "
-                                "its OFFSET; one skeleton per data set is required", label)
-    offsets = offsets.copy()
-    offsets[0] = 0.0  # the root's OFFSET is replaced by its position channels
-    return {"names": names, "parents": parents, "offsets": offsets, "quats": quats,
-            "root": trans[:, 0].copy(),  # a copy: a view would keep all of (T, J, 3) alive
-            "fps": 1.0 / float(b.frame_time), "label": label}
-
-
-def _convert_amc(label: str, data: bytes, asf, sk: SkeletonSpec, fps: float | None,
-                 budget=None) -> dict:
-    """One AMC clip against ``asf``; ``budget`` checks its frame count as it is read."""
-    from repro.data import asf_amc
-    from repro.motion.rotations import matrix_to_quat
-
-    rate, joints = asf_amc.DEFAULT_FPS if fps is None else fps, len(asf.order)
-    amc = asf_amc.parse_amc(data, label, asf, frame_check=None if budget is None else (
-        lambda n: budget.check(label, n, rate, joints, count=False)))
-    if budget is not None:
-        budget.check(label, amc.n_frames, rate, joints)
-    # the ASF's own ':units length' first (CMU's 0.45: lengths in inches), then the spec's units
-    skel, root, rotmats, rate = asf_amc.to_skeleton_motion(
-        asf, amc, **({} if fps is None else {"fps": fps}))
-    quats = np.asarray(matrix_to_quat(np.asarray(rotmats)), np.float64)
-    return {"names": list(skel.names), "parents": list(skel.parents),
-            "offsets": np.asarray(skel.offsets, np.float64), "quats": quats, "root": root,
-            "fps": float(rate), "label": label}
 
 
 # ------------------------------------------------------------------------ prepare
@@ -336,13 +249,10 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
     # class without a test or training clip is refused before any clip is parsed (issue 28)
     chosen = select_clips(spec, spec_path, source)
     digest = hashlib.sha256()
-    asf = None
-    if fmt == "asf_amc":
-        from repro.data import asf_amc
-
-        asf_bytes, asf_where = _read_asf(source, spec)
-        digest.update(b"asf\0" + hashlib.sha256(asf_bytes).digest())
-        asf = asf_amc.parse_asf(asf_bytes, asf_where)
+    asfs = None
+    if fmt == "asf_amc":  # the ASF file(s), read before the clips (dataset_asf)
+        asfs = read_skeleton_files(source, spec)
+        digest.update(asfs.digest())
     from repro.data.sources import read_regular, source_fingerprint
 
     if spec.labels.file:  # a side file of labels is part of what the data set is
@@ -377,8 +287,9 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
         clips, skipped = [], SkippedFiles(known, spec)  # a count and the first names: bounded
         budget = FrameBudget(spec.frames.resample_to, spec.frames.fps, spec.limits)  # caps
         for label, data in _iter_files(source, spec, skipped, chosen.kept_rel):  # as they stream
-            clips.append(_convert_bvh(label, data, sk, budget) if fmt == "bvh" else
-                         _convert_amc(label, data, asf, sk, spec.frames.fps, budget))
+            clips.append(convert_bvh(label, data, sk, budget) if fmt == "bvh" else
+                         convert_amc(label, data, asfs.parsed(asfs.asf_for(
+                             inner_path(label, source))), sk, spec.frames.fps, budget))
             # scaled, turned, resampled and cast to float32 at once: what the clips hold until
             # they are published is what the total caps count (the float64 copy at the files'
             # rate was held for every clip: 4 × the frames counted, at twice the bytes)
@@ -390,13 +301,8 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
             raise DataError("the source's clip files changed while it was read; run again",
                             source)
         first = clips[0]
+        skeleton_notes = one_skeleton(clips, sk, lambda lab: inner_path(lab, source), source)
         for c in clips[1:]:
-            if c["names"] != first["names"] or c["parents"] != first["parents"]:
-                raise DataError(f"hierarchy differs from {first['label']}'s; one skeleton per "
-                                "data set is required", c["label"])
-            if not np.abs(c["offsets"] - first["offsets"]).max() * sk.scale <= POSITION_TOL_M:
-                raise DataError(f"OFFSETs differ from {first['label']}'s; one skeleton per data "
-                                "set is required", c["label"])
             if not abs(c["fps"] - first["fps"]) <= FPS_RTOL * first["fps"]:
                 raise DataError(f"{c['fps']:g} fps, {first['label']} has {first['fps']:g}",
                                 c["label"])
@@ -446,7 +352,8 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
                 "split": {"method": _split_method(spec), **spec.split.model_dump(
                     exclude={"stratify"} if spec.split.stratify is None else set())},
                 "card": _card(spec, classes, style_names, labels, lengths, fps, subjects,
-                              skipped, lab.unused_rows, checks, lab.dropped, lab.unlisted),
+                              skipped, lab.unused_rows, skeleton_notes + checks, lab.dropped,
+                              lab.unlisted),
                 "stats": {"clips": len(stems), "frames": int(lengths.sum())},
                 "repro_version": __version__, "dataset_spec_version": PREPARE_VERSION}
         write_cache(root, fp, arrays, meta)

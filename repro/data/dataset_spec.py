@@ -14,7 +14,9 @@ the skeleton's conventions, the frame rate and the split::
     include = "*.bvh"                   # clip files, fnmatch over the path inside the source
                                         # ("*" crosses folders; default *.bvh / *.amc); a list
     # exclude = ["*_calib*.bvh"]        # files include takes that are not read
-    # asf = "skeleton.asf"              # asf_amc: the one skeleton every AMC clip moves
+    # asf = "skeleton.asf"              # asf_amc: the one skeleton every AMC clip moves, or
+    # asf = "*.asf"                     # a pattern: each AMC takes the nearest ASF it matches
+                                        # (its own folder first; CMU: one ASF per subject)
 
     [labels]
     from = "filename"                   # "filename" (regex), "csv" or "json" (a side file)
@@ -30,6 +32,8 @@ the skeleton's conventions, the frame rate and the split::
     # dummy_root = "reference"          # an all-zero root joint above the hips, dropped
     # hips = ["lfemur", "rfemur"]       # the heading's hip joints when not found by name
     # up_joint = "head"                 # a joint above the pelvis, likewise
+    # offset_tolerance = 0.001          # metres two clips' OFFSETs may differ (default 1e-5)
+    # fold_dummy_root = true            # a dummy root that moves: its motion joins the hips
 
     [frames]
     # fps = 30.0                        # expected rate (checked); default: the files'
@@ -134,7 +138,9 @@ class SourceSpec(_Strict):
         None, description="fnmatch pattern (or list) of files the include patterns take but "
         "that are not read (issue 28)")
     asf: str | None = Field(None, description="asf_amc: the ASF skeleton file, its path inside "
-                            "the source folder or archive (case-insensitive)")
+                            "the source folder or archive (case-insensitive); or a pattern "
+                            "(with * ? or [): each AMC clip takes the ASF it matches in its own "
+                            "folder, else in the nearest folder above (CMU: one per subject)")
 
     @field_validator("path")
     @classmethod
@@ -220,6 +226,26 @@ class SkeletonSpec(_Strict):
                                    "their names are not ones the harness knows")
     up_joint: str | None = Field(None, description="a joint above the pelvis (head, neck, "
                                  "spine) giving the body's up direction, when not found by name")
+    offset_tolerance: float | None = Field(None, gt=0, le=1.0, description="metres by which "
+                                           "clips' OFFSETs (each coordinate), or a joint's "
+                                           "position channels from its OFFSET, may differ and "
+                                           "still be one skeleton (default 1e-5); every clip is "
+                                           "then posed on the reference clip's skeleton")
+    fold_dummy_root: bool = Field(False, description="with dummy_root: compose the dummy's "
+                                  "motion (translation and rotation) into its child, the new "
+                                  "root, instead of refusing a dummy that moves")
+
+    @model_validator(mode="after")
+    def _fold_needs_dummy(self):
+        if self.fold_dummy_root and self.dummy_root is None:
+            raise ValueError("fold_dummy_root needs dummy_root (the joint whose motion is "
+                             "folded into its child)")
+        return self
+
+    @property
+    def offset_tol(self) -> float:
+        """The tolerance in metres: ``offset_tolerance``, else :data:`POSITION_TOL_M`."""
+        return self.offset_tolerance if self.offset_tolerance is not None else POSITION_TOL_M
 
     @field_validator("hips")
     @classmethod
@@ -320,6 +346,10 @@ class DatasetSpec(_Strict):
 _LATER_DEFAULTS = {("skeleton", "hips"): None, ("skeleton", "up_joint"): None,
                    ("split", "by"): "clip", ("source", "exclude"): None,
                    ("labels", "unlisted"): "error", ("split", "stratify"): None}
+#: issue 28: the skeleton's tolerance and the dummy-root fold (both change what is prepared:
+#: a clip accepted under a wider tolerance is posed on the reference skeleton)
+_LATER_DEFAULTS.update({("skeleton", "offset_tolerance"): None,
+                        ("skeleton", "fold_dummy_root"): False})
 #: the built-in stand-in's own declaration (:mod:`repro.data.bandai` reads its facts from it)
 BUILTIN_SPECS = {"bandai2": "bandai2.toml"}
 
@@ -372,10 +402,18 @@ def matches(name: str, pattern: str) -> bool:
     return fnmatch.fnmatchcase(name.lower(), pattern.lower())
 
 
+def is_pattern(asf: str) -> bool:
+    """Whether the spec's ``asf`` is a pattern (``*``, ``?`` or ``[``: one ASF per folder,
+    :mod:`repro.data.dataset_asf`) rather than one file's path."""
+    return any(c in asf for c in "*?[")
+
+
 def role_of(spec: DatasetSpec, name: str) -> str | None:
     """What the spec reads a file of the source as (its path inside the source): "asf",
     "clip", or None (not read)."""
-    if spec.source.asf and name.strip("/").lower() == spec.source.asf.lower():
+    asf = spec.source.asf
+    if asf and (matches(name.strip("/"), asf) if is_pattern(asf)
+                else name.strip("/").lower() == asf.lower()):
         return "asf"
     if not any(matches(name, p) for p in clip_patterns(spec)):
         return None

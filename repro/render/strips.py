@@ -40,6 +40,9 @@ coverage is at least 0.5.  Text, ground lines, borders and marks are colour only
 Colours: bones (from a joint to its parent) and discs take the side of the joint's name:
 left (``*_L``, ``L_*``, ``Left*``, ``*Left``, ``left_*`` ...) blue :data:`LEFT_RGB`, right
 likewise vermillion :data:`RIGHT_RGB`, others (spine, head) dark grey :data:`CENTRE_RGB`.
+A skeleton whose hips are declared (a data-set spec's ``[skeleton] hips``: CMU's ``lfemur`` /
+``rfemur``) gives the sides by its own naming instead (:func:`skeleton_sides`), passed as
+``sides``.
 The background is transparent (alpha 0, RGB white); ``rgba`` is straight (not premultiplied)
 alpha.  Same input -> identical pixels (no randomness, no time stamps).
 """
@@ -138,6 +141,37 @@ def side_of(name: str) -> int:
     return 2
 
 
+def skeleton_sides(names: Sequence[str], hips: Sequence[str] | None) -> list[int]:
+    """Per joint 0 left, 1 right, 2 centre, by the naming of the declared ``hips`` (left,
+    right): the two names less their common beginning and end are the side marks (``lfemur``
+    / ``rfemur``: ``l`` / ``r``; ``Hip.L`` / ``Hip.R``: ``L`` / ``R``), and a joint is on a
+    side when the name made by putting the other side's mark in place of one of its own is also
+    a joint (``lhumerus`` / ``rhumerus``; ``lowerback`` has no ``rowerback``).  Joints the rule
+    leaves unpaired take :func:`side_of`; without ``hips``, every joint does."""
+    if not hips:
+        return [side_of(n) for n in names]
+    left, right = hips
+    k = 0
+    while k < min(len(left), len(right)) and left[k] == right[k]:
+        k += 1
+    e = 0
+    while e < min(len(left), len(right)) - k and left[-1 - e] == right[-1 - e]:
+        e += 1
+    marks = (left[k:len(left) - e], right[k:len(right) - e])
+    known = set(names)
+
+    def paired(n: str, mine: str, other: str) -> bool:
+        at = n.find(mine)
+        while mine and at >= 0:
+            if n[:at] + other + n[at + len(mine):] in known:
+                return True
+            at = n.find(mine, at + 1)
+        return False
+
+    return [0 if paired(n, *marks) else 1 if paired(n, *marks[::-1]) else side_of(n)
+            for n in names]
+
+
 def _check(panels, parents, names):
     if not panels:
         raise ValueError("render_strip needs at least one panel")
@@ -175,8 +209,11 @@ def render_strip(panels: list[Panel], parents: Sequence[int], names: Sequence[st
                  frames: Sequence[int] | None = None, key_frames: int = 8,
                  top_view: bool = False, title: str | None = None,
                  cell: tuple[int, int] = (96, 144),
-                 metres_per_cell_height: float = 2.4) -> StripImage:
-    """Render ``panels`` (top to bottom) at the same key frames; ``cell`` = (width, height) px.
+                 metres_per_cell_height: float = 2.4,
+                 sides: Sequence[int] | None = None) -> StripImage:
+    """Render ``panels`` (top to bottom) at the same key frames; ``cell`` = (width, height) px;
+    ``sides`` (per joint 0 left, 1 right, 2 centre; default :func:`side_of` of each name, see
+    :func:`skeleton_sides`) chooses the bone colours.
 
     ``frames`` None: ``key_frame_indices(min T, key_frames, include=<segment starts but 0 of
     the first panel with segments>)``.  Raises ValueError on bad shapes or frame indices."""
@@ -198,7 +235,11 @@ def render_strip(panels: list[Panel], parents: Sequence[int], names: Sequence[st
     cw, ch = int(cell[0]), int(cell[1])
     ppm = ch / float(metres_per_cell_height)
     ground_off = ch - round(_GROUND_FRAC * ch)
-    sides = np.array([side_of(n) for n in names], np.int64)
+    if sides is not None and len(sides) != len(names):
+        raise ValueError(f"{len(sides)} sides for {len(names)} joints")
+    sides = np.array([side_of(n) for n in names] if sides is None else sides, np.int64)
+    if ((sides < 0) | (sides > 2)).any():
+        raise ValueError("sides are 0 (left), 1 (right) or 2 (centre)")
     child = np.flatnonzero(parents >= 0)
     multi = any(p.segments for p in panels)
     # layout
@@ -349,4 +390,4 @@ def save_png(image: StripImage, path) -> Path:
 
 __all__ = ["CENTRE_RGB", "LEFT_RGB", "RIGHT_RGB", "SEGMENT_PALETTE", "Panel", "Segment",
            "StripImage", "atomic_write", "key_frame_indices", "render_strip", "save_png",
-           "side_of"]
+           "side_of", "skeleton_sides"]

@@ -262,7 +262,7 @@ def write_strips(rs, out_dir: str | Path, *, formats=("png", "exr"), **kw) -> di
     """Render every strip of the run into ``out_dir`` (``NAME.png``, ``NAME.exr``) and write
     ``strips.json`` (what each strip shows); returns that record."""
     from repro.render.exr import write_exr
-    from repro.render.strips import render_strip, save_png
+    from repro.render.strips import render_strip, save_png, skeleton_sides
 
     from repro.store.atomic import output_dir
 
@@ -274,7 +274,8 @@ def write_strips(rs, out_dir: str | Path, *, formats=("png", "exr"), **kw) -> di
         if sk is None:
             sk = rs.bands[st.meta["band"]].items.skeleton
         img = render_strip(st.panels, sk.parents, sk.names, frames=st.frames,
-                           top_view=True, title=f"{rs.spec.id} | {st.title}")
+                           top_view=True, title=f"{rs.spec.id} | {st.title}",
+                           sides=skeleton_sides(sk.names, sk.hips))  # the spec's hips' naming
         files = {}
         if "png" in formats:
             save_png(img, out_dir / f"{st.name}.png")
