@@ -129,18 +129,25 @@ def _ls(args: argparse.Namespace) -> int:
         return 0
     from rich.table import Table
 
+    from repro.engine.footer import one_line
+
     t = Table()
+    why = any(r.get("error") or r.get("note") for r in rows)
     for col in ("run", "status", "table", "scale", "dataset", "created", "jobs (hit/new)",
-                "values", "commit"):
-        t.add_column(col)
+                "values", "commit") + (("error / note",) if why else ()):
+        t.add_column(col, overflow="fold")
     colour = {"FINISHED": "green", "FAILED": "red", "INTERRUPTED": "yellow", "RUNNING": "cyan"}
     for r in rows:
         st = r["status"]
-        t.add_row(r["run_id"], f"[{colour.get(st, 'white')}]{st}[/]", _esc(r["table_id"]),
-                  _esc(r["scale"]), _esc(r["dataset"]),
-                  (r["created"] or "")[:19].replace("T", " "),
-                  f"{r['n_jobs']} ({r['n_hits']}/{r['n_computed']})", str(r["n_values"]),
-                  ((r["git_commit"] or "—")[:10] + ("+" if r["git_dirty"] else "")))
+        cells = [r["run_id"], f"[{colour.get(st, 'white')}]{st}[/]", _esc(r["table_id"]),
+                 _esc(r["scale"]), _esc(r["dataset"]),
+                 (r["created"] or "")[:19].replace("T", " "),
+                 f"{r['n_jobs']} ({r['n_hits']}/{r['n_computed']})", str(r["n_values"]),
+                 ((r["git_commit"] or "—")[:10] + ("+" if r["git_dirty"] else ""))]
+        if why:  # a failed run's error on its line (issue 28), cut: `runs show` has all of it
+            text = r.get("error") or r.get("note")
+            cells.append(_esc(one_line(text, 160)) if text else "")
+        t.add_row(*cells)
     con = _console()
     con.print(t)
     con.print(f"{len(rows)} runs")
@@ -189,6 +196,11 @@ def _show(args: argparse.Namespace) -> int:
     keys = run.get("keys") or {}
     info.append(("store keys", f"{len(keys.get('read') or [])} read, "
                                f"{len(keys.get('written') or [])} written"))
+    gate = (run.get("extra") or {}).get("gate")
+    if gate:
+        from repro.eval.gate import gate_line
+
+        info.append(("real-data gate", gate_line(gate)))
     if run.get("error"):
         info.append(("error", run["error"]))
     if run.get("note"):

@@ -82,6 +82,12 @@ class TableView:
     # what each multi-action test set holds (issue 26; None: the table draws none, or has not
     # run): {set: {unseen_share, median_support, class_share_by_position, ...}}
     test_sets: dict | None = None
+    # short marks every format shows beside the title (issue 28): a run under a non-standard
+    # real-data gate, a newest run that failed; the footer says the rest
+    marks: list[str] = field(default_factory=list)
+    # the newest run of the table when it did not finish (FAILED / INTERRUPTED), newer than
+    # the run shown: {run_id, status, ended, error}
+    failed_run: dict | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
