@@ -132,24 +132,26 @@ def _ls(args: argparse.Namespace) -> int:
     from repro.engine.footer import one_line
 
     t = Table()
-    why = any(r.get("error") or r.get("note") for r in rows)
     for col in ("run", "status", "table", "scale", "dataset", "created", "jobs (hit/new)",
-                "values", "commit") + (("error / note",) if why else ()):
-        t.add_column(col, overflow="fold")
+                "values", "commit"):
+        t.add_column(col)
     colour = {"FINISHED": "green", "FAILED": "red", "INTERRUPTED": "yellow", "RUNNING": "cyan"}
     for r in rows:
         st = r["status"]
-        cells = [r["run_id"], f"[{colour.get(st, 'white')}]{st}[/]", _esc(r["table_id"]),
-                 _esc(r["scale"]), _esc(r["dataset"]),
-                 (r["created"] or "")[:19].replace("T", " "),
-                 f"{r['n_jobs']} ({r['n_hits']}/{r['n_computed']})", str(r["n_values"]),
-                 ((r["git_commit"] or "—")[:10] + ("+" if r["git_dirty"] else ""))]
-        if why:  # a failed run's error on its line (issue 28), cut: `runs show` has all of it
-            text = r.get("error") or r.get("note")
-            cells.append(_esc(one_line(text, 160)) if text else "")
-        t.add_row(*cells)
+        t.add_row(r["run_id"], f"[{colour.get(st, 'white')}]{st}[/]", _esc(r["table_id"]),
+                  _esc(r["scale"]), _esc(r["dataset"]),
+                  (r["created"] or "")[:19].replace("T", " "),
+                  f"{r['n_jobs']} ({r['n_hits']}/{r['n_computed']})", str(r["n_values"]),
+                  ((r["git_commit"] or "—")[:10] + ("+" if r["git_dirty"] else "")))
     con = _console()
     con.print(t)
+    # each run that did not finish with its error (or note), one line each, under the table
+    # (a column would fold to nothing in a narrow terminal); `runs show` has all of it
+    for r in rows:
+        text = r.get("error") or r.get("note")
+        if text and r["status"] != "FINISHED":
+            con.print(f"{r['run_id']} {r['status']}: {one_line(text, 300)}", highlight=False,
+                      markup=False, soft_wrap=True)
     con.print(f"{len(rows)} runs")
     return 0
 

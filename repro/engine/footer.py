@@ -55,7 +55,12 @@ def scale_words(scale, spec, dataset: str) -> str:
     """``quick (its description)``; when the run's data set is not the profile's own, the
     description (which names the profile's data set, "bundled bandai2-mini stand-in") is
     said to be the profile's and the data set used is named (issue 28)."""
-    own = scale.dataset_for(spec)
+    from repro.specs.scales import resolve_scale
+
+    try:  # the profile as written: ``scale`` carries --dataset in place of its own
+        own = resolve_scale(scale.name).dataset_for(spec)
+    except ReproError:
+        own = scale.dataset_for(spec)
     if dataset == own:
         return f"{scale.name} ({scale.description})"
     return (f"{scale.name} (the profile's sizes, made for {own}: \"{scale.description}\"; "

@@ -95,6 +95,8 @@ def _evaluators(plan, *, train: bool, progress: bool, weights: bool = True, rec=
             continue
         if progress:
             print(f"repro: evaluator {e['kind']} on {e['dataset']} ({e['scale']})…", file=sys.stderr)
+        if log is not None:  # training one can take minutes: say it started
+            log(f"evaluator {e['kind']} on {e['dataset']}: training or loading…")
         ev = evaluator_for(b.step_config(plan.dataset, with_evaluator=True), weights=weights)
         out[b.evaluator_key] = ev.describe()
         key = ev.meta.get("store_key") or b.evaluator_key

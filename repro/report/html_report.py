@@ -167,7 +167,9 @@ def table_page(table_id: str, out: Path, *, scale: str = "quick", dataset: str |
     spec = _spec(table_id)
     path = table_run(spec, scale, dataset, run)
     rj = read_run_json(path) if path is not None else None
-    view = table_view(spec.id, scale=scale, dataset=dataset, run=path.name if path else None)
+    # the run asked for, else the newest finished one (the view then says when a newer run
+    # failed): the same folder as ``path``
+    view = table_view(spec.id, scale=scale, dataset=dataset, run=run)
     name = page_name(spec.id)
     assets = output_subdir(out, name[:-5])  # a link planted there is replaced, not followed
     rel = assets.name
