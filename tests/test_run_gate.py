@@ -14,6 +14,15 @@ import pytest
 from test_tables_engine import TINY_SCALES, _repro, tiny_tables  # noqa: F401 (a fixture)
 
 
+@pytest.fixture(autouse=True)
+def _own_evaluators(monkeypatch):
+    """The evaluators a test loads stay its own: a loaded evaluator keeps the real-row settings
+    (max_fid) it was loaded with, and these tests change them."""
+    from repro.eval import provider
+
+    monkeypatch.setattr(provider, "_LOADED", {})
+
+
 # ---------------------------------------------------------------------- the gate, unit level
 def _rows(acc=0.70, top1=0.86, fid=0.1, margin=0.05):
     """Real rows as :func:`repro.eval.real.real_rows` returns them (the fields the gate reads)."""

@@ -31,7 +31,7 @@ import json
 from pathlib import Path
 
 from repro.report.render import html_table
-from repro.report.view import FigureView
+from repro.report.view import FigureView, data_mark
 from repro.store.atomic import output_dir, output_subdir, write_output
 
 E = html.escape
@@ -134,7 +134,8 @@ def provenance(rj: dict | None, view) -> list[tuple[str, str]]:
                       f"{bool(cfg.get('retrain'))}; budget ×{cfg.get('budget', 1.0)}; "
                       f"evaluator seed {cfg.get('evaluator_seed', 0)}"),
             ("data set", f"{rj.get('dataset')} (fingerprint {cfg.get('data_fingerprint')})"
-                         + (" — a stand-in for the paper's data" if view.standin else "")),
+                         + (f" — not the paper's data ({data_mark(view.standin)})"
+                            if view.standin else "")),
             ("evaluator fingerprints", ", ".join(evs) or "none"),
             ("machine", f"{env.get('host')}: {cpu.get('model')} ({cpu.get('cpus')} cpus), "
                         f"{env.get('platform')}, device {env.get('device')}, "
@@ -176,7 +177,7 @@ def table_page(table_id: str, out: Path, *, scale: str = "quick", dataset: str |
     body = [f"<p><a href=\"index.html\">← all tables</a></p>",
             f"<h1>{E(spec.id)}: {E(spec.title)}</h1>"]
     if view.standin:
-        body.append(f"<p class=\"standin\">STAND-IN DATA: {E(view.standin)} — the paper used "
+        body.append(f"<p class=\"standin\">{E(data_mark(view.standin))} — the paper used "
                     f"{E(spec.paper_dataset)}; absolute values are not comparable, only "
                     "orderings and gaps.</p>")
     for m in view.marks:  # a non-standard gate, a newest run that failed (the footer says more)

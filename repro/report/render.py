@@ -20,7 +20,7 @@ import io
 import json
 import math
 
-from repro.report.view import OK, CellView, FigureView, TableView
+from repro.report.view import OK, CellView, FigureView, TableView, data_mark
 
 FORMATS = ("term", "md", "latex", "html", "json", "csv")
 
@@ -60,7 +60,7 @@ def _arrow(direction: str, label: str = "") -> str:
 def _title(view: TableView) -> str:
     t = f"{view.id}: {view.title}"
     if view.standin:
-        t += f"  [STAND-IN DATA: {view.standin}]"
+        t += f"  [{data_mark(view.standin)}]"
     for m in getattr(view, "marks", None) or []:
         t += f"  [{m}]"
     return t

@@ -93,6 +93,16 @@ class TableView:
         return asdict(self)
 
 
+def data_mark(name: str) -> str:
+    """The title's mark of a data set that is not the paper's: ``STAND-IN DATA: bandai2`` for
+    a built-in stand-in, ``OWN DATA: mylab`` for one a data-set spec declares (issue 28: it
+    is not a stand-in the harness ships, and never called one)."""
+    from repro.specs import names
+
+    info = names.DATASETS.get(name)
+    return f"STAND-IN DATA: {name}" if info is not None and info.standin else f"OWN DATA: {name}"
+
+
 #: Separator of a figure's per-x cell ids: ``"overall.acc@3"`` is column overall.acc at x = 3.
 X_SEP = "@"
 
