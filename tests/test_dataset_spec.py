@@ -167,7 +167,7 @@ def test_a_table_runs_on_a_declared_data_set_by_configuration_only(labtest, tiny
     assert json.loads(out.stdout)["classes"] == 4
     out = _cli("run", "marionette/table1", "--scale", "quick", "--dataset", str(labtest),
                "--quiet")
-    assert "STAND-IN" in out.stdout and "labtest" in out.stdout
+    assert "[OWN DATA: labtest]" in out.stdout  # a declared data set: not a stand-in (issue 28)
     view = json.loads(_cli("show", "marionette/table1", "--dataset", str(labtest),
                            "--format", "json").stdout)
     real = next(r for r in view["rows"] if r["id"] == "real")

@@ -138,4 +138,4 @@ def test_lab_example_prepares(_repro_home, tmp_path):
 @pytest.mark.slow
 def test_lab_example_end_to_end(_repro_home, tmp_path):
     out = _lab_sequence(("lab", "lab-slow"), _repro_home, tmp_path)
-    assert "STAND-IN" in out.stdout and "lab-example" in out.stdout
+    assert "[OWN DATA: lab-example]" in out.stdout

@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 import sys
 
-from cli.commands import int_at_least
+from cli.commands import gate_options, int_at_least
 
 KINDS = ("a2m_gru", "uestc_gru", "multiact_gru", "transformer")
 
@@ -38,7 +38,7 @@ def register(subparsers) -> None:
     common(pr)
     pr.add_argument("--replicates", type=int, default=None, help="replicates (default: the scale's)")
     pr.add_argument("--seed", type=int, default=0, help="seed of the real draws (default 0)")
-    pr.add_argument("--no-gate", action="store_true", help="report only; do not fail on the gate")
+    gate_options(pr)
     pr.set_defaults(func=_real)
 
 
@@ -140,12 +140,18 @@ def _fmt(x, nd=4):
 
 
 def _real(args) -> int:
-    from repro.eval.gate import check_real_gate, gate_failures
+    from repro.eval.gate import apply_gate, gate_line, gate_summary, raise_if_failed, resolve_gate
     from repro.eval.real import real_rows
 
+    setting = resolve_gate(args.dataset, margin=args.gate_margin, no_gate=args.no_gate)
     ev, scale = _get(args)
     rows = real_rows(args.dataset, scale, args.replicates, args.seed, kind=args.kind, evaluator=ev)
-    reasons = gate_failures(rows, ev.meta.get("test"))
+    check = apply_gate(rows, ev.meta.get("test"), setting)  # the one gate `repro run` applies
+    reasons = check["reasons"]
+    record = gate_summary(setting, [check], check["standard_margin"])
+    rows["gate"].update({k: record[k] for k in ("enabled", "margin", "standard_margin",
+                                                "enabled_from", "margin_from", "standard",
+                                                "relaxed")})
     rows["gate"]["passed"] = not reasons
     rows["gate"]["reasons"] = reasons
     if args.json:
@@ -169,6 +175,6 @@ def _real(args) -> int:
         con.print(rows["evaluator"]["describe"], highlight=False, markup=False)
         con.print(f"evaluator fingerprint {rows['evaluator']['fingerprint']}", highlight=False, markup=False)
         con.print("gate: passed" if not reasons else "gate: FAILED", highlight=False, markup=False)
-    if not args.no_gate:
-        check_real_gate(rows, ev.meta.get("test"))
+        con.print(gate_line(record), highlight=False, markup=False)
+    raise_if_failed(check)
     return 0

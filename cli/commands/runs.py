@@ -129,6 +129,8 @@ def _ls(args: argparse.Namespace) -> int:
         return 0
     from rich.table import Table
 
+    from repro.engine.footer import one_line
+
     t = Table()
     for col in ("run", "status", "table", "scale", "dataset", "created", "jobs (hit/new)",
                 "values", "commit"):
@@ -143,6 +145,13 @@ def _ls(args: argparse.Namespace) -> int:
                   ((r["git_commit"] or "—")[:10] + ("+" if r["git_dirty"] else "")))
     con = _console()
     con.print(t)
+    # each run that did not finish with its error (or note), one line each, under the table
+    # (a column would fold to nothing in a narrow terminal); `runs show` has all of it
+    for r in rows:
+        text = r.get("error") or r.get("note")
+        if text and r["status"] != "FINISHED":
+            con.print(f"{r['run_id']} {r['status']}: {one_line(text, 300)}", highlight=False,
+                      markup=False, soft_wrap=True)
     con.print(f"{len(rows)} runs")
     return 0
 
@@ -189,6 +198,11 @@ def _show(args: argparse.Namespace) -> int:
     keys = run.get("keys") or {}
     info.append(("store keys", f"{len(keys.get('read') or [])} read, "
                                f"{len(keys.get('written') or [])} written"))
+    gate = (run.get("extra") or {}).get("gate")
+    if gate:
+        from repro.eval.gate import gate_line
+
+        info.append(("real-data gate", gate_line(gate)))
     if run.get("error"):
         info.append(("error", run["error"]))
     if run.get("note"):

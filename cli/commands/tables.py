@@ -7,7 +7,7 @@ import functools
 import json
 import sys
 
-from cli.commands import int_at_least, run_ref
+from cli.commands import gate_options, int_at_least, run_ref
 
 SCALES = ("quick", "medium", "paper")
 
@@ -131,7 +131,9 @@ def register(sub) -> None:
     _retrain_option(p)
     p.add_argument("--format", default="term", type=output_format,
                    help="term | md | latex | html | json | csv")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--quiet", action="store_true", help="no progress: neither bars (stdout "
+                   "a terminal) nor progress lines on stderr (stdout redirected)")
+    gate_options(p)
     _fast_kernels_option(p)
     p.set_defaults(func=cmd_run)
 
@@ -152,7 +154,9 @@ def register(sub) -> None:
     _retrain_option(p)
     p.add_argument("--format", default="term", choices=("term", "md", "json"),
                    help="term | md | json (default term)")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--quiet", action="store_true", help="no progress: neither bars (stdout "
+                   "a terminal) nor progress lines on stderr (stdout redirected)")
+    gate_options(p)
     _fast_kernels_option(p)
     p.set_defaults(func=cmd_sweep)
 
@@ -169,6 +173,7 @@ def register(sub) -> None:
     p.add_argument("table")
     _common(p)
     p.add_argument("--format", default="term", type=output_format)
+    gate_options(p)
     _fast_kernels_option(p)
     p.set_defaults(func=cmd_rescore)
 
@@ -243,9 +248,9 @@ def cmd_run(args) -> int:
 
     rc = 0
     runs = run_tables(args.tables, scale=args.scale, dataset=args.dataset, jobs=args.jobs,
-                      force=args.force, progress=not args.quiet and sys.stderr.isatty(),
-                      seeds=parse_seeds(args.seeds) if args.seeds is not None else None,
-                      retrain=args.retrain, backend=executor_backend(args))
+                      force=args.force, seeds=parse_seeds(args.seeds) if args.seeds is not None
+                      else None, retrain=args.retrain, backend=executor_backend(args),
+                      gate_margin=args.gate_margin, no_gate=args.no_gate, **progress_mode(args))
     for plan, summary, run_id in runs:
         name = plan.spec.id
         counts = summary.get("counts", {})
@@ -264,6 +269,18 @@ def cmd_run(args) -> int:
             print(f"repro: {plan.spec.id}: rows failed: {', '.join(failed)}", file=sys.stderr)
             rc = max(rc, 1)
     return rc
+
+
+def progress_mode(args) -> dict:
+    """How a computing command shows progress: ``--quiet`` nothing; stdout a terminal: today's
+    rich bars on stderr (when stderr is one too); stdout redirected (a log, a pipe): plain
+    progress lines on stderr, one per finished job with the elapsed time (issue 28: a
+    redirected run printed nothing for 9 minutes)."""
+    if args.quiet:
+        return {"progress": False, "lines": False}
+    if sys.stdout.isatty():
+        return {"progress": sys.stderr.isatty(), "lines": False}
+    return {"progress": False, "lines": True}
 
 
 @_on_device(computes=True)
@@ -292,9 +309,9 @@ def cmd_sweep(args) -> int:
         axis, points = "evaluator_seed", list(parse_seeds(args.evaluator_seeds))
     record = sweep_table(args.table, axis=axis, points=points, scale=args.scale,
                          dataset=args.dataset, jobs=args.jobs,
-                         progress=not args.quiet and sys.stderr.isatty(),
                          seeds=parse_seeds(args.seeds) if args.seeds is not None else None,
-                         retrain=args.retrain)
+                         retrain=args.retrain, gate_margin=args.gate_margin,
+                         no_gate=args.no_gate, **progress_mode(args))
     print(f"repro: sweep record {record['path']}/sweep.json", file=sys.stderr)
     if args.format == "json":
         print(json.dumps(record, indent=1, sort_keys=True))
@@ -322,10 +339,13 @@ def cmd_rescore(args) -> int:
     spec, sc = _spec(args.table), _scale(args.scale, args.dataset)
     ds = args.dataset or sc.dataset_for(spec)
     if latest_run(spec.id, sc.name, ds) is None:  # nothing stored to re-measure: say so, train nothing
+        from repro.engine.footer import run_hint
+
         raise ConfigError(f"{spec.id}: no earlier run at scale {sc.name} on {ds} to rescore; "
-                          f"run: repro run {spec.id} --scale {sc.name}")
+                          f"run: {run_hint(spec.id, sc.name, args.dataset)}")
     _, _, run_id = run_table(args.table, scale=args.scale, dataset=args.dataset,
-                             force="measure", progress=sys.stderr.isatty())
+                             force="measure", progress=sys.stderr.isatty(),
+                             gate_margin=args.gate_margin, no_gate=args.no_gate)
     sys.stdout.write(render(table_view(args.table, scale=args.scale, dataset=args.dataset,
                                        run=run_id), args.format))
     return 0

@@ -326,6 +326,22 @@ class LimitsSpec(_Strict):
                                                "resampling (about 60 bytes of memory each)")
 
 
+class GateSpec(_Strict):
+    """The real-data gate (:mod:`repro.eval.gate`) on this data set's table runs: a small set
+    whose real accuracy falls further below the classifier's test accuracy than the profile's
+    ``gate_margin`` can relax it here instead of in a copy of ``tables/scales.toml``.  A run
+    under a relaxed gate says so in its record, footer and report; ``--gate-margin`` and
+    ``--no-gate`` on the command line win over this.  Not part of the fingerprint
+    (:func:`key_material`): the gate decides whether methods are scored, never what the
+    prepared clips hold."""
+
+    enabled: bool = Field(True, strict=True, description="false: the gate is reported, "
+                          "never fails the run")
+    margin: float | None = Field(None, ge=0, le=1, description="real accuracy may fall this "
+                                 "far below the classifier's test accuracy (default: the scale "
+                                 "profile's real.gate_margin, 0.05)")
+
+
 class DatasetSpec(_Strict):
     schema_: Literal[1] = Field(alias="schema")
     name: str = Field(pattern=r"^[a-z0-9][a-z0-9._-]{0,63}$")
@@ -339,6 +355,7 @@ class DatasetSpec(_Strict):
     split: SplitSpec = SplitSpec()
     expect: ExpectSpec | None = None
     limits: LimitsSpec = LimitsSpec()
+    gate: GateSpec = GateSpec()
 
 
 #: fields added after the first data-set specs were prepared: left out of the key material
@@ -357,13 +374,14 @@ BUILTIN_SPECS = {"bandai2": "bandai2.toml"}
 def key_material(spec: DatasetSpec) -> dict:
     """The spec as it enters a prepared copy's fingerprint and :func:`spec_key`: validated,
     less its words (description, license, credit: editing them retrains nothing), its
-    ``[expect]`` and ``[limits]`` and the later fields at their defaults."""
+    ``[expect]``, ``[limits]`` and ``[gate]`` and the later fields at their defaults."""
     d = spec.model_dump(mode="json", by_alias=True, exclude={"description", "license", "credit"})
     for (section, field), default in _LATER_DEFAULTS.items():
         if d[section].get(field) == default:
             d[section].pop(field, None)
     d.pop("expect", None)  # a check on the prepared data, not part of what it is
     d.pop("limits", None)  # caps refuse data; they never change the bytes prepared
+    d.pop("gate", None)  # whether a run may score methods, not what the clips are
     return d
 
 

@@ -339,12 +339,24 @@ def get_entry(name: str) -> DatasetEntry:
         name = register_spec_path(name)
     if name in DATASETS:
         return DATASETS[name]
+    raise ConfigError(unknown_dataset_message(name))
+
+
+def unknown_dataset_message(name: str) -> str:
+    """The one refusal of a data-set name nothing declares (``--dataset``, ``repro data``):
+    the closest known name, the known ones, why a spec file that declares it was skipped
+    (issue 29), and how to use a data set of one's own (issue 28: the message named neither
+    a spec path nor ``$REPRO_DATASETS``)."""
+    import os
+
+    from repro.data.dataset_spec import ENV, skipped_reason
+
     near = difflib.get_close_matches(name, dataset_names(), n=1)
     hint = f"; did you mean {near[0]!r}?" if near else ""
-    from repro.data.dataset_spec import skipped_reason  # issue 29: say why it was skipped
-
-    raise ConfigError(f"unknown data set {name!r}{hint} (known: {', '.join(dataset_names())})"
-                      f"{skipped_reason(name)}")
+    return (f"unknown data set {name!r}{hint} (known: {', '.join(dataset_names())})"
+            f"{skipped_reason(name)}; a data set of your own: pass its spec file "
+            f"(--dataset path/to/spec.toml), or register it by name in ${ENV}: a folder of "
+            f"spec files or a spec file, several joined by {os.pathsep} (docs/datasets.md)")
 
 
 def load_clipset(name: str):

@@ -49,6 +49,8 @@ def baseline_path(root: Path, table: str) -> Path:
 
 def make_baseline(summary: dict, *, scale: str, dataset: str, run_id: str,
                   kernels: dict | None = None) -> dict:
+    """The baseline of a run's summary; its real-data gate (``gate``) is metadata outside
+    the checksum, like ``kernels``."""
     cells = {}
     for row, cols in sorted(summary.get("cells", {}).items()):
         for col, s in sorted(cols.items()):
@@ -56,8 +58,11 @@ def make_baseline(summary: dict, *, scale: str, dataset: str, run_id: str,
             cells.setdefault(row, {})[col] = {"mean": s["mean"], "lo": lo, "hi": hi, "n": s["n"]}
     claims = {c["id"]: c["verdict"] for c in summary.get("claims", [])}
     body = {"cells": cells, "claims": claims}
+    gate = summary.get("gate")
+    extra = {} if not gate else {"gate": {k: gate.get(k) for k in (
+        "enabled", "margin", "standard_margin", "standard", "relaxed")}}
     return {"schema": SCHEMA, "table": summary["table"], "scale": scale, "dataset": dataset,
-            "run": run_id, "kernels": kernels, "checksum": content_key(body), **body}
+            "run": run_id, "kernels": kernels, "checksum": content_key(body), **extra, **body}
 
 
 def write_baseline(root: Path, summary: dict, **meta) -> Path:
@@ -129,6 +134,32 @@ def host_note(base: dict, run_kernels: dict | None, *, drift: bool = True) -> st
             "the kernel paths differ, so last-bit differences grow through training: compare "
             "with --tolerance, or make both runs pinned")
     return f"{head}: {tail}"
+
+
+def gate_check(base: dict, run_gate: dict | None) -> tuple[str | None, str | None]:
+    """(note, problem) of comparing a run's real-data gate (``summary["gate"]``,
+    :func:`repro.eval.gate.gate_summary`) with the baseline's (``gate``, outside the checksum
+    like ``kernels``; a baseline made before runs recorded their gate was made under the
+    standard one, as every committed baseline must be).  The gate changes no number, so a run
+    under a relaxed gate is compared all the same, with a one-line note; it fails only when
+    the standard gate would have failed on that run's real rows: the standard harness would
+    then have scored nothing, so the baseline does not describe such a run (docs/engine.md)."""
+    from repro.eval.gate import gate_line
+
+    if not run_gate or run_gate.get("standard", True):
+        return None, None
+    base_gate = base.get("gate") or {"standard": True}
+    if not base_gate.get("standard", True):
+        return ("both this run and the baseline were made under a non-standard real-data "
+                f"gate; this run's: {gate_line(run_gate)}"), None
+    note = (f"this run was made under a NON-STANDARD real-data gate, the baseline under the "
+            f"standard one: {gate_line(run_gate)}")
+    failed = [r for c in run_gate.get("checks") or [] for r in c.get("standard_reasons") or []]
+    if failed:
+        return note, ("real-data gate: the standard gate fails on this run's real rows ("
+                      + "; ".join(failed) + "), so the baseline's standard run does not "
+                      "describe it")
+    return note, None
 
 
 def _step(verdict: str | None) -> int | None:

@@ -160,9 +160,12 @@ def run_samples(table: str, *, scale: str = "quick", dataset: str | None = None,
     spec = _spec(table)
     path = table_run(spec, scale, dataset, run)
     if path is None:
+        from repro.engine.footer import no_run_message
+        from repro.engine.runner import newest_failure
+
         sc = _scale(scale, dataset)
-        raise ConfigError(f"{spec.id}: no finished run at scale {sc.name}; run: "
-                          f"repro run {spec.id} --scale {sc.name}")
+        failed = newest_failure(spec.id, sc.name, dataset or sc.dataset_for(spec))
+        raise ConfigError(no_run_message(spec.id, sc.name, dataset, failed))
     rj = read_run_json(path)
     if rj.get("table") != spec.id:
         raise ConfigError(f"run {path.name} is of {rj.get('table')!r}, not {spec.id!r}")

@@ -19,7 +19,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from repro.engine.table_facts import real_rows_stored, test_sets_stored
+from repro.engine.footer import table_footer as _footer
+from repro.engine.gate_step import check_gate, stored_by
+from repro.engine.table_facts import test_sets_stored
 from repro.errors import ConfigError, ReproError
 
 
@@ -64,88 +66,14 @@ def _scale(name: str, dataset: str | None):
     return resolve_scale(name, dataset)
 
 
-def _group_lines(plan) -> list[str]:
-    """One line per column group that sets its own protocol parameters: what the group (a
-    paper data set) is on the data set actually run, with the values the run resolved (scale
-    overrides included) for the parameters the spec's group names."""
-    spec, out, seen = plan.spec, [], set()
-    for b in plan.bands:
-        if not b.implemented:
-            continue
-        for col in b.columns:
-            g = spec.group_of(col)
-            if g is None or not g.protocol_params or g.id in seen:
-                continue
-            seen.add(g.id)
-            vals = ", ".join(f"{k} {b.params.get(k, v)!r}".replace("'", "")
-                             for k, v in g.protocol_params.items())
-            paper = f" (the paper's {g.paper_dataset})" if g.paper_dataset else ""
-            out.append(f"Group {g.label}{paper} on {plan.dataset}: {vals}.")
-    return out
-
-
-def _footer(plan, evaluators: dict[str, Any], run_id: str | None,
-            budgets: dict | None = None, trainings: list | None = None,
-            kernels: dict | None = None) -> list[str]:
-    from repro.engine.evidence import budgets_text
-    from repro.stats.intervals import INTERVAL_DESCRIPTIONS
-
-    spec, scale = plan.spec, plan.scale
-    lines = []
-    if plan.dataset != spec.paper_dataset:
-        lines.append(f"Data: STAND-IN {plan.dataset} (the paper used {spec.paper_dataset}); "
-                     "numbers are not comparable in absolute value, only in ordering and gaps.")
-    if plan.retrain:
-        lines.append(f"Scale: {scale.name} ({scale.description}); replicates: {len(plan.seeds)} "
-                     f"independent trainings of each row's model, one sampling pass each (seeds "
-                     f"{list(plan.seeds)}, --retrain); the intervals include training-seed "
-                     "variance.")
-    else:
-        lines.append(f"Scale: {scale.name} ({scale.description}); replicates: {len(plan.seeds)} "
-                     f"sampling passes of one trained model per row (seeds {list(plan.seeds)}); "
-                     "training-seed variance is not inside the intervals (--retrain puts it in).")
-    lines.append(f"Paper ±: {INTERVAL_DESCRIPTIONS.get(spec.interval, spec.interval)}; ours: mean "
-                 f"±(paper convention) [95% percentile bootstrap over replicates, "
-                 f"B={scale.bootstrap_resamples}].")
-    text = budgets_text((budgets or {}).values())
-    if text or plan.budget != 1.0:
-        factor = "" if plan.budget == 1.0 else f"epochs × {plan.budget:g} of the profile's; "
-        lines.append(f"Training budget: {factor}against the paper's schedule on this data: "
-                     + (text or "no trained row") + ". A claim contradicted "
-                     "below the paper's budget reads 'not reproduced at this budget'.")
-    held = sorted({(t["training"].get("n_train"), t["training"].get("n_validation"))
-                   for t in trainings or [] if (t.get("training") or {}).get("n_validation")})
-    if held:
-        counts = ", ".join(f"{a} of {a + b}" for a, b in held)
-        lines.append(f"Validation: the models trained on {counts} training items; the rest "
-                     "(a per-class share of the training clips, the scale's "
-                     "validation_fraction) only draws their learning curves (repro runs show).")
-    for desc in evaluators.values():
-        lines.append(f"Evaluator: {desc}")
-    lines += _group_lines(plan)
-    from repro.eval.protocols import protocol_class
-
-    notes = [getattr(protocol_class(b.protocol), "footer_note", None) for b in plan.bands
-             if b.implemented]  # a band is implemented only when its protocol is importable
-    lines += [n for i, n in enumerate(notes) if n and n not in notes[:i]]
-    for b in plan.bands:
-        if not b.implemented:
-            lines.append(f"Columns {', '.join(b.columns)}: {b.reason}.")
-    if run_id:
-        from repro.kernels import describe
-
-        lines.append(f"Kernels: {describe(kernels)}"
-                     + ("" if (kernels or {}).get("mode") == "pinned" else
-                        "; not comparable bit for bit with runs on other CPUs"))
-    lines.append(f"Spec {spec.id} v{spec.version} [{spec.spec_hash[:12]}]"
-                 + (f"; run {run_id}" if run_id else "; not run yet"))
-    return lines
-
-
-def _evaluators(plan, *, train: bool, progress: bool, weights: bool = True) -> dict[str, str]:
+def _evaluators(plan, *, train: bool, progress: bool, weights: bool = True, rec=None,
+                trained: frozenset = frozenset(), log=None) -> dict[str, str]:
     """Describe (and, with ``train``, train or load) every band's evaluator; without
     ``weights`` a stored evaluator is described from its record (no weights read: nothing
-    will be scored, :func:`_measurements_stored`), one not stored yet is still trained."""
+    will be scored, :func:`_measurements_stored`), one not stored yet is still trained.
+    With a run record ``rec`` each evaluator's store key is recorded as read, or written when
+    this run trained it (here, or side by side: ``trained``); ``log(line)`` hears when each
+    one is ready (progress lines, :mod:`repro.engine.progress`)."""
     from repro.engine.steps import evaluator_for
 
     out: dict[str, str] = {}
@@ -158,8 +86,17 @@ def _evaluators(plan, *, train: bool, progress: bool, weights: bool = True) -> d
             continue
         if progress:
             print(f"repro: evaluator {e['kind']} on {e['dataset']} ({e['scale']})…", file=sys.stderr)
+        if log is not None:  # training one can take minutes: say it started
+            log(f"evaluator {e['kind']} on {e['dataset']}: training or loading…")
         ev = evaluator_for(b.step_config(plan.dataset, with_evaluator=True), weights=weights)
         out[b.evaluator_key] = ev.describe()
+        key = ev.meta.get("store_key") or b.evaluator_key
+        hit = bool(ev.meta.get("store_hit", True)) and key not in trained
+        if rec is not None:
+            stored_by(rec)(key, hit)
+        if log is not None:
+            log(f"evaluator {e['kind']} on {e['dataset']} "
+                f"{'loaded' if hit else 'trained'} [{key[:12]}]")
     return out
 
 
@@ -184,11 +121,12 @@ def _train_one_evaluator(cfg: dict) -> str:
     return evaluator_for(cfg).describe()
 
 
-def _train_evaluators_side_by_side(plans, jobs: int, progress: bool) -> None:
+def _train_evaluators_side_by_side(plans, jobs: int, progress: bool, log=None) -> frozenset:
     """Train the evaluators the plans need and the store lacks, up to ``jobs`` at a time in
     worker processes (each trains with its settings' fixed thread count, so the weights are the
     same as one after another); :func:`_evaluators` then loads them.  A failure is left for
-    the sequential pass to raise in the parent, with its usual message."""
+    the sequential pass to raise in the parent, with its usual message.  Returns the store
+    keys of those trained here (the run records count them as written)."""
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
@@ -204,72 +142,62 @@ def _train_evaluators_side_by_side(plans, jobs: int, progress: bool) -> None:
             if store.get(b.evaluator_key) is None:
                 todo[b.evaluator_key] = b.step_config(p.dataset, with_evaluator=True)
     if len(todo) < 2:
-        return
+        return frozenset()
     if progress:
         print(f"repro: training {len(todo)} evaluators, {min(jobs, len(todo))} at a time…",
               file=sys.stderr)
+    done = set()
     with ProcessPoolExecutor(max_workers=min(jobs, len(todo)),
                              mp_context=mp.get_context("spawn")) as pool:
-        for f in [pool.submit(_train_one_evaluator, cfg) for cfg in todo.values()]:
+        futures = {key: pool.submit(_train_one_evaluator, cfg) for key, cfg in todo.items()}
+        for key, f in futures.items():
             try:
                 f.result()
             except Exception:  # noqa: BLE001 - re-raised by the sequential pass
-                pass
-
-
-def _gate(plan) -> None:
-    """The real-data gate for every band that has a real row (evaluation issue, item 4).
-
-    The real rows the gate reads are stored by content
-    (:func:`repro.engine.table_facts.real_rows_stored`), so a rerun
-    checks the gate without recomputing them, from the evaluator's record (its weights are
-    read only when the real rows must be computed); the check itself always runs."""
-    from repro.engine.steps import clipset, evaluator_clipset, evaluator_for
-    from repro.eval import check_real_gate, evaluator_stats
-    from repro.eval.protocols import get_protocol
-
-    if not any(rp.method == "real" and rp.measures for rp in plan.rows):
-        return
-    seen = set()
-    for b in plan.bands:
-        if b.evaluator is None or b.evaluator_key in seen:
-            continue
-        seen.add(b.evaluator_key)
-        cfg = b.step_config(plan.dataset, with_evaluator=True)
-        ev = evaluator_for(cfg, weights=False)
-        clips = evaluator_clipset(get_protocol(b.protocol, b.params), clipset(plan.dataset))
-        rows = real_rows_stored(b.evaluator, b.evaluator_key, ev, clips,
-                          load=lambda cfg=cfg: evaluator_for(cfg))
-        check_real_gate(rows, evaluator_stats(ev))
+                continue
+            done.add(key)
+            if log is not None:
+                log(f"evaluator trained [{key[:12]}]")
+    return frozenset(done)
 
 
 def run_table(name: str, *, scale: str = "quick", dataset: str | None = None, jobs: int = 1,
               force: Any = None, progress: bool = True,
               seeds: tuple[int, ...] | None = None, retrain: bool = False,
-              budget: float = 1.0, evaluator_seed: int = 0, backend: Any = None
+              budget: float = 1.0, evaluator_seed: int = 0, backend: Any = None,
+              lines: bool = False, gate_margin: float | None = None, no_gate: bool = False
               ) -> tuple[Any, dict, str]:
     """Run one table; returns (plan, summary, run_id).  ``seeds`` replaces the profile's
     replicate seeds (the first one is also the training seed); ``retrain`` trains one model
     per replicate; ``budget`` scales every method's epochs; ``evaluator_seed`` trains the
     evaluators with another seed (:func:`repro.engine.tables.build_plan`); ``backend`` runs
-    the graph elsewhere (:func:`repro.engine.executor.execute`, e.g. on Ray)."""
+    the graph elsewhere (:func:`repro.engine.executor.execute`, e.g. on Ray); ``lines``,
+    ``gate_margin``, ``no_gate``: :func:`run_tables`."""
     return run_tables([name], scale=scale, dataset=dataset, jobs=jobs, force=force,
                       progress=progress, seeds=seeds, retrain=retrain, budget=budget,
-                      evaluator_seed=evaluator_seed, backend=backend)[0]
+                      evaluator_seed=evaluator_seed, backend=backend, lines=lines,
+                      gate_margin=gate_margin, no_gate=no_gate)[0]
 
 
 def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = None,
                jobs: int = 1, force: Any = None, progress: bool = True,
                seeds: tuple[int, ...] | None = None, retrain: bool = False,
                budget: float = 1.0, evaluator_seed: int = 0,
-               backend: Any = None) -> list[tuple[Any, dict, str]]:
+               backend: Any = None, lines: bool = False, gate_margin: float | None = None,
+               no_gate: bool = False) -> list[tuple[Any, dict, str]]:
     """Run several tables as one job graph; one (plan, summary, run_id) per distinct name.
 
     Every spec is resolved first (a typo stops before anything is computed); each table gets
     its own run record, evaluators and gate; then the jobs of all tables run as one graph, so
     ``--jobs N`` overlaps them (Tables 1, 2 and 4 share MarioNet's training and their other
     trainings run side by side instead of one table after another).  With a ``backend`` (Ray)
-    the graph's jobs run there; the evaluators and the gate still run here."""
+    the graph's jobs run there; the evaluators and the gate still run here.
+
+    ``progress``: rich bars (a terminal); ``lines``: plain progress lines on stderr instead
+    (:class:`repro.engine.progress.LineProgressHook`, output that is not a terminal).
+    ``gate_margin`` / ``no_gate``: the real-data gate (:func:`repro.eval.gate.resolve_gate`;
+    the command line over the data-set spec's ``[gate]`` over the profile), recorded in each
+    run's record, summary and footer."""
     from contextlib import ExitStack
 
     from repro.kernels import check as check_kernels
@@ -277,8 +205,14 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
     check_kernels()  # the evaluators and the gate compute in this process (repro/kernels.py)
 
     from repro.engine.tables import build_plan, collect_trainings, collect_values
+    from repro.eval.gate import resolve_gate
     from repro.store.runs import RunRecorder
 
+    hook = None
+    if lines:
+        from repro.engine.progress import LineProgressHook
+
+        hook, progress = LineProgressHook(), False
     sc = _scale(scale, dataset)
     specs = list({s.id: s for s in (_spec(n) for n in names)}.values())
     plans = [build_plan(spec, sc, dataset, seeds, retrain, budget, evaluator_seed)
@@ -287,9 +221,11 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
 
     for p in plans:  # a class short of clips under a protocol's split: said before training
         check_protocol_splits(p)
+    gates = [resolve_gate(p.dataset, margin=gate_margin, no_gate=no_gate) for p in plans]
     from repro.engine.plan import check_force
 
     check_force(force, [j for p in plans for rp in p.rows for j in _row_targets(rp)])
+    log = None if hook is None else hook.note
     out = []
     with ExitStack() as stack:
         recs = [stack.enter_context(RunRecorder(
@@ -297,26 +233,31 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
             config=p.config, scale=sc.name, dataset=p.dataset,
             device=getattr(sc, "device", "cpu"))) for p in plans]
         stored = _measurements_stored(plans, force)  # decide hits first: no scoring, no weights
+        trained: frozenset = frozenset()
         if jobs > 1 and not stored:
-            _train_evaluators_side_by_side(plans, jobs, progress)
-        evaluators = [_evaluators(p, train=bool(p.jobs()), progress=progress, weights=not stored)
-                      for p in plans]
-        for p in plans:
-            if p.jobs():
-                _gate(p)
+            trained = _train_evaluators_side_by_side(plans, jobs, progress, log)
+        evaluators = [_evaluators(p, train=bool(p.jobs()), progress=progress, weights=not stored,
+                                  rec=rec, trained=trained, log=log)
+                      for p, rec in zip(plans, recs)]
+        gate_records = []
+        for p, rec, setting in zip(plans, recs, gates):
+            gate_records.append(check_gate(p, setting, rec, log, check=bool(p.jobs())))
         executed = _execute_plans(plans, recs, jobs=jobs, force=force, progress=progress,
-                                  backend=backend)
-        for p, rec, ev, (reports, counts) in zip(plans, recs, evaluators, executed):
+                                  backend=backend, hook=hook)
+        for p, rec, ev, gate, (reports, counts) in zip(plans, recs, evaluators, gate_records,
+                                                        executed):
             values = collect_values(p, reports)
             rec.add_values(values)
             trainings = collect_trainings(p, reports)
             rec.write_trainings(trainings)
-            summary = _summary(p, values, trainings)
+            summary = _summary(p, values, trainings, stored_by(rec))
             summary["evaluators"] = ev
+            summary["gate"] = gate
             summary["footer"] = _footer(p, ev, rec.run_id, summary.get("budgets"), trainings,
-                                        kernels=(rec.data.get("env") or {}).get("kernels"))
+                                        kernels=(rec.data.get("env") or {}).get("kernels"),
+                                        gate=gate)
             summary["counts"] = counts
-            test_sets = test_sets_stored(p)
+            test_sets = test_sets_stored(p, stored_by(rec))
             if test_sets:
                 summary["test_sets"] = test_sets
             rec.write_summary(summary)
@@ -325,7 +266,7 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
     return out
 
 
-def _summary(plan, values: list[dict], trainings: list[dict]) -> dict:
+def _summary(plan, values: list[dict], trainings: list[dict], stored=None) -> dict:
     """:func:`repro.engine.tables.summarise` of a run, stored under a key made of everything
     it reads: the spec's hash, the resolved configuration, every row's status and every job's
     key (which cover the method configs the budgets read), the raw values, the training
@@ -352,7 +293,10 @@ def _summary(plan, values: list[dict], trainings: list[dict]) -> dict:
         (out / "summary.json").write_text(json.dumps(jsonable(summarise(plan, values,
                                                                         trainings))))
 
-    return Store().compute(key, "summary", compute).read_json("summary.json")
+    obj = Store().compute(key, "summary", compute)
+    if stored is not None:
+        stored(key, bool(obj.hit))
+    return obj.read_json("summary.json")
 
 
 class _FanOut:
@@ -384,14 +328,15 @@ def _row_targets(rp) -> list:
 
 
 def _execute_plans(plans: list, recorders: list, *, jobs: int, force: Any,
-                   progress: bool, backend: Any = None
+                   progress: bool, backend: Any = None, hook: Any = None
                    ) -> list[tuple[dict[str, Any], dict[str, int]]]:
     """Execute every row of every plan as one graph, so ``--jobs N`` overlaps rows and tables
     (five trainings of a table run N at a time, not one after another).  A job that fails
     cancels only what depends on it (``keep_going``): each row it reaches is marked FAILED
     with the error and the other rows go on; a user error (:class:`ReproError`) and Ctrl-C
     still stop the run.  Returns, per plan, (row id -> the graph's report, job counts by
-    status over that table's jobs)."""
+    status over that table's jobs).  ``hook``: a progress hook to use instead of the rich one
+    ``progress`` makes (:class:`repro.engine.progress.LineProgressHook`)."""
     from repro.engine.executor import execute
     from repro.engine.job import topo_order
     from repro.report.view import FAILED
@@ -406,18 +351,17 @@ def _execute_plans(plans: list, recorders: list, *, jobs: int, force: Any,
     if not targets:
         return [({}, {}) for _ in plans]
     fan = _FanOut(recorders, keys)
-    hook = None
-    if progress:
+    if hook is None and progress:
         from repro.engine.progress import RichProgressHook
 
         hook = RichProgressHook()
-    if hook is not None:
+    if isinstance(hook, contextlib.AbstractContextManager):
         with hook:
             report = execute(list(targets.values()), jobs=jobs, force=force, hook=hook,
                              recorder=fan, keep_going=True, backend=backend)
     else:
-        report = execute(list(targets.values()), jobs=jobs, force=force, recorder=fan,
-                         keep_going=True, backend=backend)
+        report = execute(list(targets.values()), jobs=jobs, force=force, hook=hook,
+                         recorder=fan, keep_going=True, backend=backend)
     out = []
     for p, mine in zip(plans, keys):
         reports: dict[str, Any] = {}
@@ -495,20 +439,66 @@ def table_view(name: str, *, scale: str = "quick", dataset: str | None = None, r
     none, the paper's values beside "not run" cells."""
     from repro.engine.tables import build_plan, make_view, unbuilt_columns
 
+    from repro.engine.footer import failure_line, gate_mark
+
     spec = _spec(name)
     sc = _scale(scale, dataset)
     path = table_run(spec, scale, dataset, run or None)
+    # the newest run, when it did not finish, is said (issue 28: "not run yet" after two
+    # FAILED runs); a run asked for by id is shown as asked
+    failed = None if run else newest_failure(spec.id, sc.name, dataset or sc.dataset_for(spec),
+                                             after=path)
     if path is not None:
         from repro.store.runs import read_run_json, read_summary
 
         summary = read_summary(path, required=True)
         rj = read_run_json(path)
-        return make_view(spec, summary.get("rows", {}), summary, summary.get("footer", []),
+        view = make_view(spec, summary.get("rows", {}), summary, summary.get("footer", []),
                          rj.get("dataset"))
-    plan = build_plan(spec, sc, dataset)
-    rows = {rp.row_id: {"status": _before_run(rp.status), "reason": rp.reason} for rp in plan.rows}
-    return make_view(spec, rows, None, _footer(plan, _evaluators(plan, train=False, progress=False),
-                                               None), plan.dataset, unbuilt_columns(plan))
+        mark = gate_mark(summary.get("gate"))
+        if mark:
+            view.marks.append(mark)
+    else:
+        plan = build_plan(spec, sc, dataset)
+        rows = {rp.row_id: {"status": _before_run(rp.status), "reason": rp.reason}
+                for rp in plan.rows}
+        view = make_view(spec, rows, None,
+                         _footer(plan, _evaluators(plan, train=False, progress=False), None),
+                         plan.dataset, unbuilt_columns(plan))
+    if failed is not None:
+        view.failed_run = {k: failed.get(k) for k in ("run_id", "status", "ended", "error",
+                                                      "note")}
+        view.marks.append(f"NEWEST RUN {failed.get('status')}")
+        view.footer = [failure_line(failed, path.name if path else None), *view.footer]
+    return view
+
+
+def newest_failure(table: str, scale: str, dataset: str, after: Path | None = None
+                   ) -> dict | None:
+    """The ``run.json`` of the newest FAILED or INTERRUPTED plain run of ``table`` at
+    ``scale`` on ``dataset`` that is newer than the run folder ``after`` (the finished run
+    shown; None: any), else None.  Run ids sort by start time."""
+    from repro.store.run_checks import warn_bad_run as _warn_bad_run
+    from repro.store.runs import FAILED, INTERRUPTED, read_run_json, run_dirs
+
+    for d in reversed(run_dirs()):
+        if after is not None and d.name <= Path(after).name:
+            return None
+        try:
+            rj = read_run_json(d)
+        except ReproError as e:
+            _warn_bad_run(d, e)
+            continue
+        if (rj.get("table"), rj.get("scale"), rj.get("dataset")) != (table, scale, dataset):
+            continue
+        cfg = rj.get("config") or {}
+        if cfg.get("budget", 1.0) != 1.0 or cfg.get("evaluator_seed", 0):
+            continue  # a sweep's other points are not the table's run
+        if rj.get("status") in (FAILED, INTERRUPTED):
+            return rj
+        if rj.get("status") not in ("RUNNING", "QUEUED"):
+            return None  # a finished run newer than ``after``: nothing failed after it
+    return None
 
 
 def _before_run(status: str) -> str:
@@ -553,7 +543,8 @@ def verify_table(name: str, baseline_dir: str | Path, *, scale: str = "quick",
     with or without ``--retrain`` is compared (a ``--retrain`` run's intervals hold the spread
     of training seeds; such a run is preferred).  A run made unpinned (or under another pin
     version) against a pinned baseline is a ConfigError, and a note under ``tolerance``."""
-    from repro.engine.baselines import compare, host_lines, host_note, load_baseline, refusal
+    from repro.engine.baselines import (compare, gate_check, host_lines, host_note,
+                                        load_baseline, refusal)
     from repro.store.runs import read_run_json, read_summary
 
     spec = _spec(name)
@@ -563,8 +554,10 @@ def verify_table(name: str, baseline_dir: str | Path, *, scale: str = "quick",
     if tolerance is not None:  # the spread of training seeds: a --retrain run when there is one
         path = latest_run(spec.id, sc.name, ds, retrain=True) or path
     if path is None:
-        raise ConfigError(f"no finished run of {spec.id} at scale {sc.name}; run "
-                          f"`repro run {spec.id} --scale {sc.name}` first")
+        from repro.engine.footer import no_run_message
+
+        raise ConfigError(no_run_message(spec.id, sc.name, dataset,
+                                         newest_failure(spec.id, sc.name, ds)))
     base = load_baseline(Path(baseline_dir), spec.id)
     rj = read_run_json(path)
     kernels = (rj.get("env") or {}).get("kernels")
@@ -582,6 +575,11 @@ def verify_table(name: str, baseline_dir: str | Path, *, scale: str = "quick",
                         "sampling spread (no --retrain run: training seeds are not in the "
                         "intervals, so this is narrower than the training-seed spread)"))
     problems = compare(base, summary, tolerance=tolerance, retrain=retrain, notes=notes)
+    gate_note, gate_problem = gate_check(base, summary.get("gate"))
+    if gate_note:
+        notes.append(gate_note)
+    if gate_problem:
+        problems.append(gate_problem)
     note = host_note(base, kernels, drift=bool(problems))
     if note:
         notes.append(note)

@@ -60,9 +60,12 @@ def classify_budget(verdicts: list[str]) -> str:
 
 def sweep_table(name: str, *, axis: str, points: list, scale: str = "quick",
                 dataset: str | None = None, jobs: int = 1, progress: bool = True,
-                seeds: tuple[int, ...] | None = None, retrain: bool = False) -> dict:
+                seeds: tuple[int, ...] | None = None, retrain: bool = False,
+                lines: bool = False, gate_margin: float | None = None,
+                no_gate: bool = False) -> dict:
     """Run ``name`` once per point of ``axis`` and return the sweep record (also written to
-    ``REPRO_HOME/sweeps/<id>/sweep.json``)."""
+    ``REPRO_HOME/sweeps/<id>/sweep.json``); ``lines``, ``gate_margin``, ``no_gate``: as
+    :func:`repro.engine.runner.run_tables` (each point's run records its gate)."""
     from repro.engine.runner import run_table
     from repro.errors import ConfigError
 
@@ -73,7 +76,9 @@ def sweep_table(name: str, *, axis: str, points: list, scale: str = "quick",
     for pt in points:
         kw = {"budget": float(pt)} if axis == "budget" else {"evaluator_seed": int(pt)}
         plan, summary, run_id = run_table(name, scale=scale, dataset=dataset, jobs=jobs,
-                                          progress=progress, seeds=seeds, retrain=retrain, **kw)
+                                          progress=progress, seeds=seeds, retrain=retrain,
+                                          lines=lines, gate_margin=gate_margin,
+                                          no_gate=no_gate, **kw)
         runs.append((pt, plan, summary, run_id))
     record = build_record(axis, runs)
     write_record(record)

@@ -12,12 +12,13 @@ from pathlib import Path
 __all__ = ["real_rows_stored", "test_sets_stored"]
 
 
-def real_rows_stored(e: dict, evaluator_key: str, ev, clips, load=None) -> dict:
+def real_rows_stored(e: dict, evaluator_key: str, ev, clips, load=None, stored=None) -> dict:
     """:func:`repro.eval.real_rows` of one evaluator, stored under a key made of everything
     they depend on: the evaluator's store key, the clips, the evaluator settings (sample
     counts), the profile's bootstrap resamples and the source of ``repro.eval.real``.
     ``ev`` may be a record without weights; ``load()`` then gives the scoring one, called
-    only when the rows are not stored."""
+    only when the rows are not stored.  ``stored(key, hit)`` hears the object's key and whether
+    it was found (a run record counts what it read and wrote)."""
     from repro.engine.source_hash import source_hash
     from repro.eval import real_rows
     from repro.eval.real import _bootstrap_resamples
@@ -36,16 +37,20 @@ def real_rows_stored(e: dict, evaluator_key: str, ev, clips, load=None) -> dict:
                          clipset=clips)
         (out / "real_rows.json").write_text(json.dumps(rows, sort_keys=True))
 
-    return Store().compute(key, "real_rows", compute).read_json("real_rows.json")
+    obj = Store().compute(key, "real_rows", compute)
+    if stored is not None:
+        stored(key, bool(obj.hit))
+    return obj.read_json("real_rows.json")
 
 
-def test_sets_stored(plan) -> dict:
+def test_sets_stored(plan, stored=None) -> dict:
     """What each multi-action test set of the run holds (issue 26, supp. §4.2): the
     ``test_set_record`` of every band whose protocol draws test chains (``multi_action``,
     ``ss_ar``), merged by set name (``overall``, ``sufficient``).  A record depends on the
     data, the band's protocol parameters and version and its evaluator only (no job, no
     generator), and is stored by content like the real rows, so a rerun reads it back; the
-    evaluator's weights are read only to compute it."""
+    evaluator's weights are read only to compute it.  ``stored(key, hit)``: as for
+    :func:`real_rows_stored`."""
     from repro.engine.source_hash import source_hash
     from repro.engine.steps import clipset, evaluator_for
     from repro.eval.protocols import get_protocol
@@ -71,7 +76,10 @@ def test_sets_stored(plan) -> dict:
             rec = proto.test_set_record(clipset(plan.dataset), evaluator_for(cfg))
             (path / "test_sets.json").write_text(json.dumps(rec, sort_keys=True))
 
-        rec = Store().compute(key, "test_sets", compute).read_json("test_sets.json")
+        obj = Store().compute(key, "test_sets", compute)
+        if stored is not None:
+            stored(key, bool(obj.hit))
+        rec = obj.read_json("test_sets.json")
         for name, stats in sorted(rec.items()):
             out.setdefault(name, stats)
     return out

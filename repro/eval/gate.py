@@ -17,6 +17,7 @@ one line, exit 2) naming every failed check:
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any, Mapping
 
 from repro.errors import ReproError
@@ -25,10 +26,11 @@ from repro.errors import ReproError
 class RealGateError(ReproError):
     """The real rows failed their sanity bounds; methods are not scored."""
 
-    def __init__(self, dataset: str, evaluator: str, reasons: list[str]):
+    def __init__(self, dataset: str, evaluator: str, reasons: list[str], detail: str = ""):
         self.dataset, self.evaluator, self.reasons = dataset, evaluator, list(reasons)
         super().__init__(f"real-data gate failed for {dataset} (evaluator {evaluator}); methods "
-                         f"are not scored: " + "; ".join(reasons))
+                         f"are not scored: " + "; ".join(reasons) + (f" [{detail}]" if detail
+                                                                      else ""))
 
 
 def _test_top1(evaluator_stats: Any) -> float | None:
@@ -41,6 +43,24 @@ def _test_top1(evaluator_stats: Any) -> float | None:
         return None
     v = getattr(evaluator_stats, "top1", None)
     return None if v is None else float(v)
+
+
+def measured(real_rows: Mapping) -> str:
+    """What the gate's two accuracies are, so a user can find both numbers: the real accuracy
+    is the mean over the gate's own real reference sets (``repro eval real`` prints the same
+    rows), not the table's Real row (the protocol's test items, scored like generated ones,
+    one value per replicate seed); the test accuracy is the classifier's, over every test
+    window (``repro eval classifier``)."""
+    ev = real_rows.get("evaluator") or {}
+    stride = ""
+    if ev.get("test_windows"):
+        stride = f" ({ev['test_windows']} windows)"
+    return (f"real accuracy = mean over {real_rows.get('replicates', '?')} replicates of the "
+            f"gate's real reference sets, {real_rows.get('per_class', '?')} class-balanced "
+            f"test windows per class of {real_rows.get('window', '?')} frames, seed "
+            f"{real_rows.get('seed', 0)}: `repro eval real` shows it, the table's Real row "
+            f"scores the protocol's test items instead; test accuracy = the classifier's on "
+            f"every test window{stride}, `repro eval classifier`")
 
 
 def gate_failures(real_rows: Mapping, evaluator_stats: Any = None, margin: float | None = None,
@@ -86,6 +106,148 @@ def check_real_gate(real_rows: Mapping, evaluator_stats: Any = None, margin: flo
     """
     reasons = gate_failures(real_rows, evaluator_stats, margin, max_fid)
     if reasons:
-        ev = real_rows.get("evaluator", {})
-        name = f"{ev.get('kind', '?')} [{str(ev.get('fingerprint', '?'))[:12]}]"
-        raise RealGateError(str(real_rows.get("dataset", "?")), name, reasons)
+        raise RealGateError(str(real_rows.get("dataset", "?")), _evaluator_name(real_rows),
+                            reasons, _detail(real_rows, reasons))
+
+
+def _evaluator_name(real_rows: Mapping) -> str:
+    ev = real_rows.get("evaluator", {})
+    return f"{ev.get('kind', '?')} [{str(ev.get('fingerprint', '?'))[:12]}]"
+
+
+def _detail(real_rows: Mapping, reasons: list[str]) -> str:
+    """What the accuracies of a failed accuracy check are (:func:`measured`), else ''."""
+    return measured(real_rows) if any(r.startswith("real accuracy") for r in reasons) else ""
+
+
+# ---------------------------------------------------------------------- which gate a run used
+#: where a gate setting came from, in the order a later one wins
+PROFILE, SPEC, COMMAND_LINE = "profile", "spec", "command line"
+
+
+@dataclass(frozen=True)
+class GateSetting:
+    """The gate a run asked for: ``enabled`` / ``margin`` None keep the profile's (on, its
+    ``real.gate_margin``); ``*_from`` say who set each (:data:`SPEC` with the spec file, or
+    :data:`COMMAND_LINE`).  One implementation for ``repro run`` / ``sweep`` / ``rescore``
+    and ``repro eval real`` (:func:`resolve_gate`, :func:`apply_gate`)."""
+
+    enabled: bool | None = None
+    margin: float | None = None
+    enabled_from: str = PROFILE
+    margin_from: str = PROFILE
+
+
+def resolve_gate(dataset: str | None, *, margin: float | None = None,
+                 no_gate: bool = False) -> GateSetting:
+    """The gate of a run on ``dataset``: the command line (``--gate-margin``, ``--no-gate``)
+    over the data-set spec's ``[gate]`` over the profile (docs/engine.md, "The real-data
+    gate").  ``margin`` is checked here too (a number in [0, 1]): the CLI's argparse type
+    says so earlier."""
+    from repro.errors import ConfigError
+
+    if margin is not None and not (isinstance(margin, (int, float)) and 0 <= margin <= 1):
+        raise ConfigError(f"--gate-margin must be a number in [0, 1], got {margin!r}")
+    enabled, e_from, m, m_from = None, PROFILE, None, PROFILE
+    spec_gate, spec_file = _spec_gate(dataset)
+    if spec_gate is not None:
+        where = f"{SPEC} {spec_file} [gate]"
+        if not spec_gate.enabled:
+            enabled, e_from = False, where
+        if spec_gate.margin is not None:
+            m, m_from = float(spec_gate.margin), where
+    if no_gate:
+        enabled, e_from = False, f"{COMMAND_LINE} (--no-gate)"
+    if margin is not None:
+        m, m_from = float(margin), f"{COMMAND_LINE} (--gate-margin)"
+    return GateSetting(enabled, m, e_from, m_from)
+
+
+def _spec_gate(dataset: str | None):
+    """(the ``[gate]`` of the spec that declares ``dataset``, its file), or (None, None) for
+    a built-in data set or one no spec declares."""
+    if not dataset:
+        return None, None
+    from repro.data.dataset_spec import load_dataset_spec, spec_file_of
+
+    path = spec_file_of(dataset)
+    if path is None:
+        return None, None
+    return load_dataset_spec(path).gate, path
+
+
+def apply_gate(real_rows: Mapping, evaluator_stats: Any, setting: GateSetting) -> dict:
+    """The gate's record for one evaluator's real rows under ``setting`` (nothing raised):
+    what it measured, the margin used and the profile's (the standard one), its reasons under
+    both, and whether the gate was enabled.  :func:`raise_if_failed` then stops the run."""
+    standard = float((real_rows.get("gate") or {}).get("margin", 0.05))
+    margin = standard if setting.margin is None else float(setting.margin)
+    enabled = setting.enabled is not False
+    reasons = gate_failures(real_rows, evaluator_stats, margin)
+    std = reasons if margin == standard else gate_failures(real_rows, evaluator_stats, standard)
+    acc = ((real_rows.get("rows") or {}).get("real") or {}).get("accuracy") or {}
+    top1 = _test_top1(evaluator_stats)
+    return {"dataset": real_rows.get("dataset"), "evaluator": _evaluator_name(real_rows),
+            "enabled": enabled, "margin": margin, "standard_margin": standard,
+            "passed": not reasons, "reasons": reasons,
+            "standard_passed": not std, "standard_reasons": std,
+            "real_accuracy": acc.get("mean"),
+            "test_accuracy": top1 if top1 is not None else _test_top1(
+                real_rows.get("evaluator") or {}),
+            "measured": measured(real_rows)}
+
+
+def raise_if_failed(check: Mapping) -> None:
+    """:class:`RealGateError` when the gate of ``check`` (:func:`apply_gate`) is enabled and
+    failed; the message says what was measured and how to relax the gate (the run is then
+    marked)."""
+    if check["enabled"] and check["reasons"]:
+        detail = check["measured"] if any(r.startswith("real accuracy")
+                                          for r in check["reasons"]) else ""
+        raise RealGateError(str(check.get("dataset") or "?"), check["evaluator"],
+                            check["reasons"],
+                            (detail + "; " if detail else "") + "to score methods anyway pass "
+                            "--gate-margin X or --no-gate (or set [gate] in the data-set "
+                            "spec): the run is then marked as made under a non-standard gate")
+
+
+def gate_summary(setting: GateSetting, checks: list[dict], profile_margin: float) -> dict:
+    """What a run records of its gate (``summary.json`` and ``run.json`` ``extra.gate``): the
+    setting used, each evaluator's check (:func:`apply_gate`), and whether it is the standard
+    gate (on, at the profile's margin) or a relaxed one (off, or a wider margin)."""
+    std = sorted({float(c["standard_margin"]) for c in checks}) or [float(profile_margin)]
+    enabled = setting.enabled is not False
+    m = setting.margin
+    return {"schema": 1, "enabled": enabled,
+            "margin": (float(m) if m is not None else std[0] if len(std) == 1 else None),
+            "standard_margin": std[0] if len(std) == 1 else std,
+            "enabled_from": setting.enabled_from, "margin_from": setting.margin_from,
+            "standard": enabled and (m is None or all(m == s for s in std)),
+            "relaxed": (not enabled) or (m is not None and any(m > s for s in std)),
+            "checks": list(checks)}
+
+
+def gate_line(gate: Mapping | None) -> str:
+    """The footer's line for a run's gate record (:func:`gate_summary`).  A run recorded
+    before runs named their gate ran under the profile's: nothing could relax it then."""
+    if not gate:
+        return "Real-data gate: standard (the scale profile's margin; not recorded by this run)."
+    m = "-" if gate.get("margin") is None else f"{float(gate['margin']):.3f}"
+    std = gate.get("standard_margin")
+    s = f"{float(std):.3f}" if isinstance(std, (int, float)) else str(std)
+    checks = gate.get("checks") or []
+    outcome = ("no real row checked" if not checks else
+               "passed" if all(c.get("passed") for c in checks) else "FAILED, not enforced")
+    if gate.get("standard"):
+        return f"Real-data gate: standard (on, margin {m}, the scale profile's): {outcome}."
+    kind = "NON-STANDARD, RELAXED" if gate.get("relaxed") else "NON-STANDARD"
+    parts = ["on" if gate.get("enabled", True) else f"off ({gate.get('enabled_from')})"]
+    if gate.get("margin_from", PROFILE) != PROFILE:
+        parts.append(f"margin {m} ({gate.get('margin_from')}) instead of the profile's {s}")
+    std_failed = [c for c in checks if not c.get("standard_passed", True)]
+    verdict = ("" if not checks else
+               " The standard gate would have FAILED: " + "; ".join(
+                   r for c in std_failed for r in c.get("standard_reasons") or []) + "."
+               if std_failed else " The standard gate would have passed.")
+    return (f"Real-data gate: {kind}: {', '.join(parts)}: {outcome}; not a standard run."
+            + verdict)

@@ -31,7 +31,7 @@ import json
 from pathlib import Path
 
 from repro.report.render import html_table
-from repro.report.view import FigureView
+from repro.report.view import FigureView, data_mark
 from repro.store.atomic import output_dir, output_subdir, write_output
 
 E = html.escape
@@ -109,6 +109,11 @@ def _claims_html(view) -> list[str]:
 def provenance(rj: dict | None, view) -> list[tuple[str, str]]:
     """(field, value) pairs saying what made the numbers."""
     if rj is None:
+        failed = getattr(view, "failed_run", None)
+        if failed:
+            from repro.engine.footer import failure_line
+
+            return [("run", "none finished at this scale; " + failure_line(failed, None))]
         return [("run", "none: this table has not been run at this scale")]
     cfg = rj.get("config") or {}
     git = rj.get("git") or {}
@@ -129,7 +134,8 @@ def provenance(rj: dict | None, view) -> list[tuple[str, str]]:
                       f"{bool(cfg.get('retrain'))}; budget ×{cfg.get('budget', 1.0)}; "
                       f"evaluator seed {cfg.get('evaluator_seed', 0)}"),
             ("data set", f"{rj.get('dataset')} (fingerprint {cfg.get('data_fingerprint')})"
-                         + (" — a stand-in for the paper's data" if view.standin else "")),
+                         + (f" — not the paper's data ({data_mark(view.standin)})"
+                            if view.standin else "")),
             ("evaluator fingerprints", ", ".join(evs) or "none"),
             ("machine", f"{env.get('host')}: {cpu.get('model')} ({cpu.get('cpus')} cpus), "
                         f"{env.get('platform')}, device {env.get('device')}, "
@@ -162,17 +168,32 @@ def table_page(table_id: str, out: Path, *, scale: str = "quick", dataset: str |
     spec = _spec(table_id)
     path = table_run(spec, scale, dataset, run)
     rj = read_run_json(path) if path is not None else None
-    view = table_view(spec.id, scale=scale, dataset=dataset, run=path.name if path else None)
+    # the run asked for, else the newest finished one (the view then says when a newer run
+    # failed): the same folder as ``path``
+    view = table_view(spec.id, scale=scale, dataset=dataset, run=run)
     name = page_name(spec.id)
     assets = output_subdir(out, name[:-5])  # a link planted there is replaced, not followed
     rel = assets.name
     body = [f"<p><a href=\"index.html\">← all tables</a></p>",
             f"<h1>{E(spec.id)}: {E(spec.title)}</h1>"]
     if view.standin:
-        body.append(f"<p class=\"standin\">STAND-IN DATA: {E(view.standin)} — the paper used "
+        body.append(f"<p class=\"standin\">{E(data_mark(view.standin))} — the paper used "
                     f"{E(spec.paper_dataset)}; absolute values are not comparable, only "
                     "orderings and gaps.</p>")
+    for m in view.marks:  # a non-standard gate, a newest run that failed (the footer says more)
+        body.append(f"<p class=\"standin\">{E(m)}</p>")
+    failed = view.failed_run
+    if failed:
+        from repro.engine.footer import failure_line
+
+        body.append(f"<p class=\"standin\">{E(failure_line(failed, path.name if path else None))}"
+                    "</p>")
     state = "run " + path.name if path else "not run"
+    if failed:
+        state = (f"newest run {failed.get('run_id')} {failed.get('status')}; "
+                 + (f"showing run {path.name}" if path else "no finished run"))
+    if view.marks and not failed:
+        state += " [" + "; ".join(view.marks) + "]"
     if isinstance(view, FigureView) and not (view.x is not None and view.x.values):
         why = "; ".join(sorted({f"{r.label}: {r.status}" for r in view.rows}))
         body.append(f"<p class=\"standin\">Not reproduced yet — {E(why)}.</p>")
@@ -207,7 +228,8 @@ def table_page(table_id: str, out: Path, *, scale: str = "quick", dataset: str |
     body.append("<h2>Strips: the motions behind the numbers</h2>")
     n_strips = 0
     if path is None:
-        body.append("<p class=\"muted\">Not run yet: no samples to draw.</p>")
+        body.append("<p class=\"muted\">" + ("No finished run: no samples to draw." if failed
+                                                else "Not run yet: no samples to draw.") + "</p>")
     elif not strips:
         body.append("<p class=\"muted\">Strips were not asked for (--no-strips).</p>")
     else:

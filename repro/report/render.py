@@ -20,7 +20,7 @@ import io
 import json
 import math
 
-from repro.report.view import OK, CellView, FigureView, TableView
+from repro.report.view import OK, CellView, FigureView, TableView, data_mark
 
 FORMATS = ("term", "md", "latex", "html", "json", "csv")
 
@@ -60,7 +60,9 @@ def _arrow(direction: str, label: str = "") -> str:
 def _title(view: TableView) -> str:
     t = f"{view.id}: {view.title}"
     if view.standin:
-        t += f"  [STAND-IN DATA: {view.standin}]"
+        t += f"  [{data_mark(view.standin)}]"
+    for m in getattr(view, "marks", None) or []:
+        t += f"  [{m}]"
     return t
 
 
@@ -220,11 +222,18 @@ def _render_json(view: TableView) -> str:
     return json.dumps(view.to_dict(), indent=2, sort_keys=True) + "\n"
 
 
+def _csv_marks(view: TableView) -> str:
+    """The CSV's ``marks`` column (the same on every line): a CSV has no title or footer, so
+    the marks a title carries (a non-standard gate, a newest run that failed) go here."""
+    return " | ".join(getattr(view, "marks", None) or [])
+
+
 def _render_csv(view: TableView) -> str:
     buf = io.StringIO()
     w = csv.writer(buf)
     w.writerow(["table", "row", "method", "column", "status", "paper", "value", "paper_pm",
-                "ci_lo", "ci_hi", "n"])
+                "ci_lo", "ci_hi", "n", "marks"])
+    marks = _csv_marks(view)
     for row in view.rows:
         for c in view.columns:
             cell = row.cells.get(c.id, CellView(status=row.status))
@@ -232,7 +241,7 @@ def _render_csv(view: TableView) -> str:
                         "" if cell.value is None else repr(cell.value),
                         "" if cell.paper_pm is None else repr(cell.paper_pm),
                         "" if cell.ci is None else repr(cell.ci[0]),
-                        "" if cell.ci is None else repr(cell.ci[1]), cell.n])
+                        "" if cell.ci is None else repr(cell.ci[1]), cell.n, marks])
     return buf.getvalue()
 
 
@@ -329,7 +338,8 @@ def _figure_csv(view: FigureView) -> str:
     buf = io.StringIO()
     w = csv.writer(buf)
     w.writerow(["table", "row", "method", "column", "status", "paper", "value", "paper_pm",
-                "ci_lo", "ci_hi", "n", "x"])
+                "ci_lo", "ci_hi", "n", "x", "marks"])
+    marks = _csv_marks(view)
     for row in view.rows:
         for c in view.columns:
             for xs, key in view.cell_keys(c.id):
@@ -339,5 +349,5 @@ def _figure_csv(view: FigureView) -> str:
                             "" if cell.paper_pm is None else repr(cell.paper_pm),
                             "" if cell.ci is None else repr(cell.ci[0]),
                             "" if cell.ci is None else repr(cell.ci[1]), cell.n,
-                            "" if key == c.id else xs])
+                            "" if key == c.id else xs, marks])
     return buf.getvalue()

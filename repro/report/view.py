@@ -82,9 +82,25 @@ class TableView:
     # what each multi-action test set holds (issue 26; None: the table draws none, or has not
     # run): {set: {unseen_share, median_support, class_share_by_position, ...}}
     test_sets: dict | None = None
+    # short marks every format shows beside the title (issue 28): a run under a non-standard
+    # real-data gate, a newest run that failed; the footer says the rest
+    marks: list[str] = field(default_factory=list)
+    # the newest run of the table when it did not finish (FAILED / INTERRUPTED), newer than
+    # the run shown: {run_id, status, ended, error}
+    failed_run: dict | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+def data_mark(name: str) -> str:
+    """The title's mark of a data set that is not the paper's: ``STAND-IN DATA: bandai2`` for
+    a built-in stand-in, ``OWN DATA: mylab`` for one a data-set spec declares (issue 28: it
+    is not a stand-in the harness ships, and never called one)."""
+    from repro.specs import names
+
+    info = names.DATASETS.get(name)
+    return f"STAND-IN DATA: {name}" if info is not None and info.standin else f"OWN DATA: {name}"
 
 
 #: Separator of a figure's per-x cell ids: ``"overall.acc@3"`` is column overall.acc at x = 3.

@@ -296,10 +296,10 @@ def resolve_scale(name: str, dataset: str | None = None, *, path: str | Path | N
                           f"(choose from {', '.join(SCALE_NAMES)})")
     if dataset is not None and dataset not in names.DATASETS:
         from repro.data.registry import DATASETS as REGISTERED  # + declared data sets
+        from repro.data.registry import unknown_dataset_message
 
         if dataset not in REGISTERED:
-            raise ConfigError(names.unknown_name_message("dataset", dataset,
-                                                         list(REGISTERED)))
+            raise ConfigError(unknown_dataset_message(dataset))
     path = Path(path) if path is not None else scales_path()
     sf = load_scales(path)
     prof: ScaleProfile = getattr(sf, name)

@@ -190,11 +190,18 @@ def claim_probability(a_values, b_values, direction: Literal["lower", "higher"] 
     sampler.random_state = np.random.RandomState(derive_seed(seed, "claim", "emcee") % 2**32).get_state()
     # a row without spread starts its walkers at the sd floor: emcee's condition-number check of
     # the initial state would refuse that ensemble, though sampling from it is well defined
-    sampler.run_mcmc(p0, n_steps, progress=False, skip_initial_state_check=True)
-    chain = sampler.get_chain(discard=burn)
-    diff = sign * (chain[:, :, 2] - chain[:, :, 0])
-    p = float(np.mean(diff >= delta / scale))
-    tau = _integrated_time(diff)
+    # Rows about 10^6 pooled sds apart put every walker outside the prior's bounds (log
+    # probability -inf): emcee's stretch move then compares -inf - (-inf) = NaN, which rejects
+    # the proposal (NaN > x is False), and the chain that never moved has the autocorrelation
+    # 0/0 = NaN, so ess is NaN.  Both are the "did not mix (acceptance 0)" case handled below;
+    # numpy's "invalid value" RuntimeWarnings for them leaked to a run's stderr (issue 28), so
+    # only that floating-point state is silenced here, never overflow or divide-by-zero.
+    with np.errstate(invalid="ignore"):
+        sampler.run_mcmc(p0, n_steps, progress=False, skip_initial_state_check=True)
+        chain = sampler.get_chain(discard=burn)
+        diff = sign * (chain[:, :, 2] - chain[:, :, 0])
+        p = float(np.mean(diff >= delta / scale))
+        tau = _integrated_time(diff)
     ess = float(diff.size / max(tau, 1.0))
     acceptance = float(np.mean(sampler.acceptance_fraction))
     v, reason = verdict(p), None

@@ -181,6 +181,19 @@ def _insert(con: sqlite3.Connection, rid: str, rec, stamp: str) -> None:
                     + [(rid, k, "written") for k in keys.get("written") or []])
 
 
+def _listed(row: dict[str, Any]) -> dict[str, Any]:
+    """A row of :meth:`RunIndex.list`: its stored ``run_json`` replaced by the record's
+    ``error`` and ``note`` (text or None)."""
+    try:
+        rj = json.loads(row.pop("run_json") or "{}")
+    except ValueError:
+        rj = {}
+    rj = rj if isinstance(rj, dict) else {}
+    row["error"] = _text(rj.get("error"))
+    row["note"] = _text(rj.get("note"))
+    return row
+
+
 class RunIndex:
     def __init__(self, path: str | Path | None = None, runs_dir: str | Path | None = None):
         from repro.paths import runs_root
@@ -389,11 +402,12 @@ class RunIndex:
 
     def list(self, table: str | None = None, status: str | None = None,
              limit: int | None = None) -> list[dict[str, Any]]:
-        """Runs, newest first (after :meth:`sync`)."""
+        """Runs, newest first (after :meth:`sync`); ``error`` / ``note`` from each run's
+        record (a FAILED run's error, an INTERRUPTED one's note; None otherwise)."""
         self.sync()
         q = ("SELECT run_id, status, table_id, scale, dataset, spec_version, spec_hash, "
              "git_commit, git_dirty, created, started, ended, host, n_jobs, n_hits, n_computed, "
-             "n_values FROM runs NOT INDEXED")
+             "n_values, run_json FROM runs NOT INDEXED")
         cond, args = [], []
         if table:
             cond.append("table_id = ?")
@@ -409,7 +423,7 @@ class RunIndex:
 
         def op():
             with closing(self._open(self.path)) as con:
-                return [dict(r) for r in con.execute(q, args)]
+                return [_listed(dict(r)) for r in con.execute(q, args)]
         return self._healing(op)
 
     def _query(self, q: str, args: tuple = ()) -> list[sqlite3.Row]:

@@ -319,6 +319,13 @@ class RunRecorder:
         self._add_keys(read, written)
         self._write_run()
 
+    def add_extra(self, name: str, value: Any) -> None:
+        """Set ``extra[name]`` (e.g. the real-data gate the run used, :mod:`repro.eval.gate`),
+        written at once so a run that fails later still records it."""
+        self._check_open()
+        self._data["extra"][str(name)] = jsonable(value)
+        self._write_run()
+
     def add_values(self, rows: Iterable[Mapping[str, Any]]) -> None:
         """Append value lines ``{row, column, replicate, value, ...}`` (file rewritten atomically)."""
         self._check_open()
