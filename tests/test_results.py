@@ -352,6 +352,23 @@ def test_before_26_history_covers_the_marionette_and_multiact_specs():
     assert {_run(p)[0]["table"] for p in BEFORE_26} == MARIONETTE | MULTIACT
 
 
+MEDIUM_BEFORE_26 = _records("medium-before-26")
+
+
+@pytest.mark.parametrize("path", MEDIUM_BEFORE_26, ids=[p.name for p in MEDIUM_BEFORE_26])
+def test_medium_records_before_issue_26_are_their_values(path):
+    """The Neural Marionette medium records until issue 26 (composer version 1, unpinned,
+    2026-12-01; replaced 2026-12-05 by records of composer version 2 under the kernel pin):
+    kept as history, each consistent with its own raw values."""
+    rj, summary = _run(path)
+    assert rj["status"] == "FINISHED" and rj["scale"] == "medium" and rj["dataset"] == "bandai2"
+    _cells_are_their_values(path, summary, 5)
+
+
+def test_medium_before_26_history_covers_the_marionette_specs():
+    assert {_run(p)[0]["table"] for p in MEDIUM_BEFORE_26} == MARIONETTE
+
+
 BEFORE_27 = {"quick": _records("odmo-quick-before-27"), "medium": _records("odmo-medium-before-27")}
 BEFORE_27_ALL = [(s, p) for s, ps in BEFORE_27.items() for p in ps]
 
