@@ -13,9 +13,10 @@ quick``) by their specs and the documented options alone: docs/datasets.md's wal
   prepared, its joints are the bundled clips' own;
 - the **ASF/AMC set with subjects** (one ASF per subject, bones 0 to 6 % longer, labels and
   subjects from a CSV, ``run`` by three subjects) is refused for its split (``run``: no test
-  clip; fix ``stratify = "action"``), a single ASF across subjects (fix ``asf = "*.asf"``)
-  and the subjects' bone lengths (fix ``offset_tolerance`` above them); prepared, every take
-  is posed on subject 01's bones, the bundled clips' own.
+  clip; fix ``stratify = "action"``), a single ASF across subjects (fix ``asf = "*.asf"``),
+  the subjects' bone lengths (fix ``offset_tolerance`` above them) and the hips its names
+  point to, which start at one point (fix ``[skeleton] hips``); prepared, every take is posed
+  on subject 01's bones, the bundled clips' own.
 
 The commands run in this process (``cli.main.main``: the same parser, the same one-line errors
 and exit codes as the ``repro`` script) so that the whole walk-through takes seconds.
@@ -128,9 +129,13 @@ def run_cmd(name: str) -> str:
 
 
 BUILD_CMD = f".venv/bin/python docs/examples/own_data_sets.py {OUT}"
+#: the ASF/AMC set, split by subject, fails the standard gate on FID(train, test): scored with
+#: the gate off, the run marked NON-STANDARD
+NO_GATE = " --no-gate"
 #: every command of the walk-through (the docs may show no other)
-COMMANDS = {BUILD_CMD, *(f(n) for f in (check_cmd, prepare_cmd, plan_cmd, run_cmd)
-                         for n in ("styles", "subjects"))}
+COMMANDS = {BUILD_CMD, run_cmd("subjects") + NO_GATE,
+            *(f(n) for f in (check_cmd, prepare_cmd, plan_cmd, run_cmd)
+              for n in ("styles", "subjects"))}
 
 
 @pytest.fixture(scope="module")
@@ -281,6 +286,12 @@ def test_an_asf_amc_set_with_subjects_by_its_spec_alone(tmp_path, fresh_registry
                    "raise offset_tolerance")
     assert "and 46 more" in line  # 56 files counted, ten named
     text = add(text, "skeleton", "offset_tolerance = 0.03")
+
+    # 4. the hips the names point to, Hip_L / Hip_R, both start at the root
+    r = run(prepare_cmd("subjects"), text)
+    refused(r, "subjects.toml: body frame: the hips found, 'Hip_L' and 'Hip_R', are at one "
+            "point", "[skeleton] hips = [left, right]")
+    text = add(text, "skeleton", 'hips = ["UpperLeg_L", "UpperLeg_R"]')
     assert tomllib.loads(text) == tomllib.loads(own.SUBJECTS_SPEC)
     out = ok(run(prepare_cmd("subjects"), own.SUBJECTS_SPEC))
     flat = " ".join(out.split())
@@ -360,42 +371,66 @@ def _cli(cmd: str, out: Path, home: Path) -> tuple[subprocess.CompletedProcess, 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["styles", "subjects"])
 def test_marionette_table1_runs_on_each_set_by_its_spec_alone(name, tmp_path, _repro_home):
-    """`repro run marionette/table1 --scale quick` on the spec as it ends the walk-through:
-    a table marked as the declared data set's, under the standard real-data gate.  With
-    $REPRO_OWN_DATA_RECORD set, what the commands printed, their wall times and the run's
-    record are written there (docs/results/own-data/)."""
+    """`repro run marionette/table1 --scale quick` on the spec as it ends the walk-through: a
+    table marked as the declared data set's.  The BVH set passes the standard real-data gate;
+    the ASF/AMC set (whole subjects, hence styles, in test) fails it on FID(train, test),
+    one line naming --no-gate, and is then scored with the gate off, marked NON-STANDARD.
+    With $REPRO_OWN_DATA_RECORD set, what the commands printed, their wall times and the
+    runs' records are written there (docs/results/own-data/<name>/)."""
     steps = [BUILD_CMD, prepare_cmd(name), run_cmd(name)]
+    if name == "subjects":
+        steps.append(run_cmd(name) + NO_GATE)
     printed = {}
     for cmd in steps:
         r, seconds = _cli(cmd, tmp_path, _repro_home)
-        assert r.returncode == 0, (cmd, r.stderr[-3000:])
         assert "Traceback" not in r.stderr
         printed[cmd] = (r, seconds)
-    r, seconds = printed[run_cmd(name)]
+        if cmd == run_cmd("subjects"):
+            lines = [ln for ln in r.stderr.splitlines() if ln.startswith("repro: error: ")]
+            assert r.returncode == 2 and len(lines) == 1, r.stderr[-3000:]
+            for needle in ("real-data gate failed for lab-subjects", "methods are not scored: "
+                           "real FID(train, test) ", "exceeds the bound 3.000",
+                           "pass --no-gate (or set [gate] enabled = false"):
+                assert needle in lines[0], (needle, lines[0])
+            assert "Real-data gate: standard (on, margin 0.050, the scale profile's): " \
+                "FAILED." in r.stderr
+        else:
+            assert r.returncode == 0, (cmd, r.stderr[-3000:])
+    r = printed[steps[-1]][0]
     data = f"lab-{name}"
     assert f"[OWN DATA: {data}]" in r.stdout
     assert f"Data: {data} (declared by {tmp_path / name / name}.toml)" in r.stdout
-    assert "Real-data gate: standard (on, margin 0.050, the scale profile's): passed." in \
-        r.stdout
-    assert "NON-STANDARD" not in r.stdout
+    if name == "styles":
+        assert "Real-data gate: standard (on, margin 0.050, the scale profile's): passed." \
+            in r.stdout and "NON-STANDARD" not in r.stdout
+    else:
+        assert "[NON-STANDARD GATE: off]" in r.stdout
+        assert "Real-data gate: NON-STANDARD, RELAXED: off (command line (--no-gate)): " \
+            "FAILED, not enforced; not a standard run. The standard gate would have FAILED: " \
+            "real FID(train, test) " in " ".join(r.stdout.split())
     record = os.environ.get("REPRO_OWN_DATA_RECORD")
     if record:
-        dest = Path(record) / name
-        dest.mkdir(parents=True, exist_ok=True)
-        git = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
-                             cwd=repo_root()).stdout.strip()
-        lines = [f"commit {git}"]
-        for cmd, (res, s) in printed.items():
-            lines.append(f"{cmd}: exit {res.returncode}, {s:.0f} s wall")
-        (dest / "commands.txt").write_text("\n".join(lines) + "\n")
-        stem = {prepare_cmd(name): "prepare", run_cmd(name): "run"}
-        for cmd, key in stem.items():
-            res = printed[cmd][0]
-            (dest / f"{key}.stdout.txt").write_text(res.stdout.replace(str(tmp_path), OUT))
-            (dest / f"{key}.stderr.txt").write_text(res.stderr.replace(str(tmp_path), OUT))
-        run_id = re.search(r"run (\d{8}T[\d.]+Z-[0-9a-f]{6})", r.stdout).group(1)
+        _record(Path(record) / name, printed, tmp_path, _repro_home)
+
+
+def _record(dest: Path, printed: dict, out: Path, home: Path) -> None:
+    """What the commands printed (the temporary folder shown as the docs' ``build/own``), their
+    exit codes and wall times, the commit each run recorded, and the runs' folders."""
+    dest.mkdir(parents=True, exist_ok=True)
+    runs = sorted(p for p in (home / "runs").iterdir() if (p / "run.json").is_file())
+    lines = []
+    for k, (cmd, (res, s)) in enumerate(printed.items()):
+        lines.append(f"{cmd}: exit {res.returncode}, {s:.0f} s wall")
+        if cmd.startswith("repro "):
+            stem = f"{k}-{cmd.split()[1]}"
+            (dest / f"{stem}.stdout.txt").write_text(res.stdout.replace(str(out), OUT))
+            (dest / f"{stem}.stderr.txt").write_text(res.stderr.replace(str(out), OUT))
+    for run in runs:
+        rj = json.loads((run / "run.json").read_text())
+        lines.append(f"run {run.name}: {rj['status']}, commit {rj['git']['commit']}"
+                     f"{' (dirty)' if rj['git'].get('dirty') else ''}")
+        (dest / run.name).mkdir(exist_ok=True)
         for f in ("run.json", "summary.json", "trainings.json", "values.jsonl"):
-            src = _repro_home / "runs" / run_id / f
-            if src.is_file():
-                (dest / run_id).mkdir(exist_ok=True)
-                shutil.copyfile(src, dest / run_id / f)
+            if (run / f).is_file():  # as recorded (the spec's temporary path and all)
+                shutil.copyfile(run / f, dest / run.name / f)
+    (dest / "commands.txt").write_text("\n".join(lines) + "\n")

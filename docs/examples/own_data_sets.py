@@ -97,7 +97,6 @@ file = "labels.csv"
 
 [skeleton]
 units = "cm"
-hips = ["UpperLeg_L", "UpperLeg_R"]
 
 [frames]
 fps = 30.0
