@@ -357,6 +357,53 @@ def test_the_docs_walkthrough_shows_these_commands_and_specs():
         assert spec in blocks, spec.splitlines()[:2]
 
 
+RECORDS = repo_root() / "docs" / "results" / "own-data"
+#: the walk-through's excerpt rows -> the records' rows; its columns -> the records' metrics
+EXCERPT_ROWS = {"Real Test Data": "real", "MANN": "mann", "A2M": "a2m",
+                "Ours (MARIONET)": "marionet", "ACTOR": "actor",
+                "nearest training clip": "nearest_clip"}
+EXCERPT_COLS = ("fid", "acc", "div", "multimod", "traj_err")
+
+
+def _finished_runs(name: str) -> list[Path]:
+    return sorted(p for p in (RECORDS / name).iterdir() if (p / "summary.json").is_file())
+
+
+def test_the_recorded_tables_are_shown_as_they_render(tmp_path, monkeypatch):
+    """docs/results/own-data/README.md shows each set's recorded table as `repro show`
+    renders it, and the walk-through's excerpts are the records' cell means."""
+    from repro.engine.runner import table_view
+    from repro.report import render
+
+    runs = {name: _finished_runs(name) for name in ("styles", "subjects")}
+    assert [len(r) for r in runs.values()] == [1, 1]
+    for r in runs.values():
+        shutil.copytree(r[0], tmp_path / "runs" / r[0].name)
+    monkeypatch.setenv("REPRO_HOME", str(tmp_path))
+    readme = "\n".join(ln.rstrip() for ln in (RECORDS / "README.md").read_text().splitlines())
+    tables = re.findall(r"\| row \| FID↓ \| Acc↑ \| Div↑ \| Multi-m↑ \| Δ_Traj↓ \|\n\|[-|]+\|\n"
+                        r"((?:\|.*\|\n)+)", walkthrough())
+    assert len(tables) == 2
+    for (name, r), table in zip(runs.items(), tables):
+        rj = json.loads((r[0] / "run.json").read_text())
+        assert rj["dataset"] == f"lab-{name}" and rj["status"] == "FINISHED"
+        md = render(table_view(rj["table"], scale=rj["scale"], run=rj["run_id"]), "md")
+        assert "\n".join(ln.rstrip() for ln in md.strip().splitlines()) in readme, name
+        cells = json.loads((r[0] / "summary.json").read_text())["cells"]
+        rows = [[c.strip() for c in ln.strip("|").split("|")] for ln in table.splitlines()]
+        assert [row[0] for row in rows] == list(EXCERPT_ROWS)
+        for row in rows:
+            for col, text in zip(EXCERPT_COLS, row[1:]):
+                cell = cells[EXCERPT_ROWS[row[0]]].get(col)
+                if text == "/":
+                    assert cell is None, (name, row[0], col)
+                    continue
+                want = cell["mean"]
+                got = float(text.replace("−", "-"))
+                assert abs(got - want) <= (5e-4 if abs(want) > 1e-3 else 1e-8), \
+                    (name, row[0], col, got, want)
+
+
 # ---------------------------------------------------------------------------- end to end
 def _cli(cmd: str, out: Path, home: Path) -> tuple[subprocess.CompletedProcess, float]:
     argv = shlex.split(cmd.replace(OUT, str(out)))
