@@ -148,6 +148,26 @@ def bundled(tmp_path_factory):
         yield load_mini()
 
 
+def walk(name: str, tmp_path: Path, capsys, bundled):
+    """(the builder, the spec file of the set ``name`` written under ``tmp_path``, and
+    ``run(cmd, text)``: the docs' command ``cmd`` with the spec holding ``text``)."""
+    own = builder()
+    spec = getattr(own, f"write_{name}_set")(tmp_path / name, bundled)
+
+    def run(cmd: str, text: str):
+        spec.write_text(text)
+        return repro(capsys, cmd, tmp_path)
+    return own, spec, run
+
+
+def prepared(spec: Path):
+    """The prepared ClipSet of ``spec``."""
+    from repro.data.dataset_spec import register_spec_path
+    from repro.data.registry import load_clipset
+
+    return load_clipset(register_spec_path(str(spec)))
+
+
 def _joints(clips, i: int) -> np.ndarray:
     s, n = int(clips.starts[i]), int(clips.lengths[i])
     return np.asarray(clips.joints[s:s + n], np.float64)
@@ -155,17 +175,9 @@ def _joints(clips, i: int) -> np.ndarray:
 
 # ------------------------------------------------------------------ the BVH set with styles
 def test_a_bvh_set_with_styles_by_its_spec_alone(tmp_path, fresh_registry, capsys, bundled):
-    from repro.data.dataset_spec import register_spec_path
-    from repro.data.registry import load_clipset
-
-    own = builder()
-    spec = own.write_styles_set(tmp_path / "styles", bundled)
+    own, spec, run = walk("styles", tmp_path, capsys, bundled)
     takes = own.style_takes(bundled)
     assert len(takes) == 9 * 7 + 2 and spec.read_text() == own.STYLES_SPEC
-
-    def run(cmd, text):
-        spec.write_text(text)
-        return repro(capsys, cmd, tmp_path)
 
     # 1. one take per (action, style) cell: the default split puts round(0.2 × 1) = 0 of each
     # cell in test; refused from the file names, before any clip is parsed
@@ -232,7 +244,7 @@ def test_a_bvh_set_with_styles_by_its_spec_alone(tmp_path, fresh_registry, capsy
 
     # the prepared takes are the bundled clips' motion: the dummy folded back, the elderly
     # takes posed on the reference's (the bundled) bones
-    got = load_clipset(register_spec_path(str(spec)))
+    got = prepared(spec)
     assert got.skeleton.names == bundled.skeleton.names and len(got) == 63
     assert np.allclose(got.skeleton.offsets, bundled.skeleton.offsets, atol=1e-7)
     for a, s, i in takes:
@@ -248,17 +260,9 @@ def test_a_bvh_set_with_styles_by_its_spec_alone(tmp_path, fresh_registry, capsy
 # ------------------------------------------------------------ the ASF/AMC set with subjects
 def test_an_asf_amc_set_with_subjects_by_its_spec_alone(tmp_path, fresh_registry, capsys,
                                                         bundled):
-    from repro.data.dataset_spec import register_spec_path
-    from repro.data.registry import load_clipset
-
-    own = builder()
-    spec = own.write_subjects_set(tmp_path / "subjects", bundled)
+    own, spec, run = walk("subjects", tmp_path, capsys, bundled)
     takes = own.subject_takes(bundled)
     assert len(takes) == 9 * 7 + 3 and spec.read_text() == own.SUBJECTS_SPEC
-
-    def run(cmd, text):
-        spec.write_text(text)
-        return repro(capsys, cmd, tmp_path)
 
     # 1. whole subjects to test, in the seeded order: none of run's three performers
     text = own.SUBJECTS_FIRST
@@ -303,7 +307,7 @@ def test_an_asf_amc_set_with_subjects_by_its_spec_alone(tmp_path, fresh_registry
     # every take read with its own subject's ASF and posed on subject 01's bones, which are
     # the bundled skeleton's: the bundled joints (the root is 'root', the connector bones
     # Hip_L ... are extra joints)
-    got = load_clipset(register_spec_path(str(spec)))
+    got = prepared(spec)
     names = ["root" if n == "Hips" else n for n in bundled.skeleton.names]
     cols = [got.skeleton.names.index(n) for n in names]
     meta_subjects = {}

@@ -35,6 +35,7 @@ stand-in's, so a table on either is a stand-in result too (and the files keep it
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
@@ -57,53 +58,6 @@ SUBJECTS = {"active": "01", "elderly": "02", "exhausted": "03", "feminine": "04"
 FEW_ACTION = "run"
 FEW_SUBJECTS = ("01", "02", "04")
 DUMMY_ROOT = "joint_Root"
-
-#: the specs a user would write first (the walk-through's starting points): what the files
-#: are, where, and how they are labelled; each refusal on the way then asks for one more line
-STYLES_FIRST = '''schema = 1
-name = "lab-styles"
-description = "one take per action x style cell of bandai2-mini's clips, as exported BVH"
-license = "CC BY-NC 4.0"
-credit = "Bandai Namco Research Inc. (motion); written by docs/examples/own_data_sets.py"
-
-[source]
-path = "takes"
-include = "*.bvh"
-
-[labels]
-pattern = '^dataset-2_(?P<action>[a-z-]+)_(?P<style>[a-z]+)_\\d+$'
-
-[skeleton]
-units = "cm"
-
-[frames]
-fps = 30.0
-'''
-
-SUBJECTS_FIRST = '''schema = 1
-name = "lab-subjects"
-description = "bandai2-mini's clips as seven performers' AMC takes, one ASF per performer"
-license = "CC BY-NC 4.0"
-credit = "Bandai Namco Research Inc. (motion); written by docs/examples/own_data_sets.py"
-
-[source]
-path = "mocap"
-format = "asf_amc"
-asf = "01/01.asf"
-
-[labels]
-from = "csv"
-file = "labels.csv"
-
-[skeleton]
-units = "cm"
-
-[frames]
-fps = 30.0
-
-[split]
-by = "subject"
-'''
 
 STYLES_SPEC = '''# A BVH set with styles (written by docs/examples/own_data_sets.py; docs/datasets.md,
 # "Walk-through: two data sets of one's own").
@@ -165,6 +119,33 @@ fps = 30.0                           # AMC files carry no frame rate
 by = "subject"                       # no performer on both sides ...
 stratify = "action"                  # ... and every action on both sides
 '''
+
+
+def first_spec(spec: str, drop: tuple[str, ...], replace: dict[str, str] | None = None) -> str:
+    """The spec a user would write first (the walk-through's starting point): ``spec`` less
+    its comments, the lines setting the keys in ``drop`` (and a list's continuation lines)
+    and the sections left empty, with the values of ``replace`` (``{line: line}``) put back
+    as they were before a refusal asked for them."""
+    rows: list[str] = []
+    dropping = False
+    for line in spec.split("\n"):
+        if line.startswith("#") or (dropping and line.startswith(" ")):
+            continue
+        dropping = line.split("=")[0].strip() in drop
+        if not dropping:
+            line = line.split("  #")[0].rstrip()
+            rows.append((replace or {}).get(line, line))
+    out = re.sub(r"\n\[[a-z]+\]\n(?=\n|$)", "\n", "\n".join(rows))  # a section left empty
+    out = re.sub(r"\n{3,}", "\n\n", out)
+    return out.strip("\n") + "\n"
+
+
+#: the specs a user would write first: what the files are, where, and how they are
+#: labelled; each refusal on the way then asks for one more line (or another value)
+STYLES_FIRST = first_spec(STYLES_SPEC, ("classes", "dummy_root", "fold_dummy_root",
+                                        "offset_tolerance", "by"))
+SUBJECTS_FIRST = first_spec(SUBJECTS_SPEC, ("hips", "offset_tolerance", "stratify"),
+                            {'asf = "*.asf"': 'asf = "01/01.asf"'})
 
 
 def _cells(clips) -> dict[tuple[str, str], int]:
