@@ -152,6 +152,7 @@ def _print_declared_card(card: dict) -> None:
     """A declared data set's card beyond the counts: per-class durations, subjects, and what
     the source held that was not read."""
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     con = Console()
@@ -163,14 +164,14 @@ def _print_declared_card(card: dict) -> None:
     if card.get("subjects"):
         con.print(f"subjects: {card['subjects']}")
     for w in card.get("warnings", []):
-        con.print(f"[yellow]warning[/yellow]: {w}")
+        con.print(f"[yellow]warning[/yellow]: {escape(w)}")  # "[skeleton] ..." is no markup
     for key, what in (("skipped_files", "file(s) in the source matched no pattern"),
                       ("unused_label_rows", "label row(s) name no clip of the source"),
                       ("unlisted_clips", "clip(s) dropped: the labels do not name them")):
         d = card.get(key) or {}
         if d.get("count"):
             more = " …" if d["count"] > len(d["first"]) else ""
-            con.print(f"{d['count']} {what}: {', '.join(d['first'])}{more}")
+            con.print(f"{d['count']} {what}: {', '.join(d['first'])}{more}", markup=False)
     if card.get("excluded_files"):
         con.print(f"{card['excluded_files']} file(s) left out by [source] exclude",
                   markup=False)

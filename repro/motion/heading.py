@@ -158,6 +158,10 @@ def _body_frame_cached(skeleton: Skeleton, left_hip, right_hip, up_joint) -> Bod
             raise ValueError("body frame: cannot find a head/neck/spine joint below the pelvis "
                              f"{skeleton.names[pelvis]!r}; pass up_joint=")
     left = _rest_position(skeleton, L, pelvis) - _rest_position(skeleton, R, pelvis)
+    tiny = 1e-6 * max(1.0, np.linalg.norm(skeleton.offsets[L]))
+    if np.linalg.norm(left) < tiny:  # CMU's lhipjoint / rhipjoint: both start at the root
+        raise ValueError(f"body frame: the hips found, {skeleton.names[L]!r} and "
+                         f"{skeleton.names[R]!r}, are at one point")
     up = _rest_position(skeleton, U, pelvis)
     nu = np.linalg.norm(up)
     if nu < 1e-9:
@@ -165,8 +169,9 @@ def _body_frame_cached(skeleton: Skeleton, left_hip, right_hip, up_joint) -> Bod
     up = up / nu
     left = left - (left @ up) * up
     nl = np.linalg.norm(left)
-    if nl < 1e-6 * max(1.0, np.linalg.norm(skeleton.offsets[L])):
-        raise ValueError("body frame: the hip line is parallel to the up direction")
+    if nl < tiny:
+        raise ValueError(f"body frame: the hip line ({skeleton.names[L]!r} to "
+                         f"{skeleton.names[R]!r}) is parallel to the up direction")
     left = left / nl
     forward = np.cross(left, up)
     for a in (left, up, forward):
