@@ -11,8 +11,8 @@ import pytest
 import torch
 
 from repro.data.clipset import TEST, TRAIN
-from repro.models.items import build_items
 from test_items import synthetic_clipset
+from repro.data.contexts import build_items
 
 
 @pytest.fixture(autouse=True, scope="module")

@@ -11,12 +11,12 @@ import pytest
 import torch
 
 from repro.data.clipset import TEST, TRAIN
+from repro.data.contexts import build_items
 from repro.errors import ConfigError
 from repro.models.a2m import A2M, A2MConfig, kl_gaussians
 from repro.models.actor import ACTOR, ACTORConfig
 from repro.models.base import Generator, generator_class
 from repro.models.baseline_io import pack_poses, pose_joints
-from repro.models.items import build_items
 from repro.models.mann import MANN, MANNConfig, ExpertLinear, sgdr_factor
 from repro.motion.rotations import sixd_to_matrix
 from model_fixtures import clips, items, one_torch_thread, test_items  # noqa: F401 (fixtures)

@@ -303,7 +303,7 @@ def test_unaligned_action_ignores_prev(actor, pairs):
 
 
 def _cond(gen, pairs):
-    from repro.models.items import condition_items
+    from repro.data.action_items import condition_items
 
     prev, l_p = pairs.prev()
     return condition_items(last_frames(prev, l_p, 6), pairs.labels, pairs.labels, pairs.l_c,

@@ -13,6 +13,7 @@ import pytest
 import torch
 from test_items import synthetic_clipset
 
+from repro.data.action_items import ActionItems, GeneratedItems
 from repro.data.clipset import TEST, TRAIN
 from repro.data.pairs import GeneratedPairs, PairItems, gather_frames
 from repro.errors import ConfigError, DataError
@@ -26,7 +27,6 @@ from repro.eval.protocols.multiact_common import MultiActSamples, load_samples
 from repro.eval.protocols.multiact_conditions import anchor_frames, blind
 from repro.eval.protocols.multiact_conditioned import MultiActConditioned
 from repro.eval.protocols.transition import Transition
-from repro.models.items import ActionItems, GeneratedItems
 from repro.motion.motion import Motion
 from repro.seeding import numpy_rng, torch_generator
 

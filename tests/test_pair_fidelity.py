@@ -10,7 +10,7 @@ import torch
 
 from repro.data.clipset import TEST, TRAIN
 from repro.data.pair_fidelity import linear_deviation_cm, pair_fidelity
-from repro.data.pairs import PairSource
+from repro.data.pairs_build import PairSource
 from repro.keys import content_key
 
 

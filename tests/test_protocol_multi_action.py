@@ -252,7 +252,7 @@ def test_ss_ar_runs_neural_marionette_with_the_evaluator_as_f_c(setup):
     assert torch.equal(out.motion.root[0::L][keep], base.motion.root[0::L][keep])
     # F_c = the scorer: action 1 is revised exactly where the scorer rejects the plain pass
     from repro.eval.protocols.multi_action import MultiAction
-    from repro.models.items import GeneratedItems
+    from repro.data.action_items import GeneratedItems
     from repro.seeding import derive_seed
 
     first = torch.arange(S) * L

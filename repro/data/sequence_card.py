@@ -35,7 +35,7 @@ __all__ = ["card", "fidelity", "junction_quality", "junction_fidelity", "truncat
 
 #: tag chains per test set, their length and the sufficient set's top-k (supp. §4.2)
 CHAINS, CHAIN_LENGTH, TOP_K = 500, 20, 4
-#: the NM protocols whose items cap an action at ``max_frames`` (repro.data.contexts.ItemSource)
+#: the NM protocols whose items cap an action at ``max_frames`` (repro.data.contexts.ActionSource)
 _NM_PROTOCOLS = ("single_action", "multi_action", "ss_ar")
 
 
@@ -247,11 +247,11 @@ def junction_fidelity(seqs) -> dict:
 
 def truncated_actions(seqs) -> dict:
     """Per scale profile: share of training action segments longer than its ``max_frames``."""
-    from repro.data.contexts import ItemSource
+    from repro.data.contexts import ActionSource
     from repro.specs.scales import SCALE_NAMES, resolve_scale
 
     lens = seqs.seg_length[seqs.segments(split=TRAIN, role=ROLE_ACTION)]
-    default = ItemSource.model_fields["max_frames"].default
+    default = ActionSource.model_fields["max_frames"].default
     out = {}
     for name in SCALE_NAMES:
         prof = resolve_scale(name)

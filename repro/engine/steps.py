@@ -68,29 +68,14 @@ def evaluator_for(cfg: dict, weights: bool = True):
 
 
 def training_items(cfg: dict, clips, item_kind: str = "actions"):
-    """The items a method trains on: described by ``cfg["items"]``, so every protocol that
-    makes items the same way shares the trained model.  The description is a
-    :class:`repro.data.contexts.ItemSource` (Neural Marionette's single actions), or, with
-    ``builder = "multiact_pairs"``, a :class:`repro.data.pairs.PairSource` (MultiAct's
-    [S_p, T, S_c] samples); a method whose ``item_kind`` is ``"actions"`` (ACTOR) trains on the
-    pairs' current actions (:meth:`repro.data.pairs.PairItems.as_action_items`); with
-    ``builder = "odmo_windows"`` a :class:`repro.data.odmo_items.WindowItems` pool (ODMO's
-    windows; methods of ``item_kind`` ``"windows"``), or its fixed windows as actions (ACTOR,
-    Action2Motion in ODMO's tables)."""
-    desc = cfg["items"]
-    if isinstance(desc, dict) and desc.get("builder") == "odmo_windows":
-        from repro.data.odmo_items import WindowSource
+    """The items a method trains on: described by ``cfg["items"]`` (an item source's
+    ``describe()``, :mod:`repro.data.item_sources`), so every protocol that makes items the
+    same way shares the trained model; a method reads them as its ``item_kind`` asks
+    (:meth:`repro.data.item_sources.ItemSource.training_items`: e.g. ACTOR the current actions
+    of MultiAct's pairs, Action2Motion the fixed windows of ODMO's pool as actions)."""
+    from repro.data.item_families import source_from_description
 
-        pool = WindowSource.from_description(desc).train_items(clips)
-        return pool if item_kind == "windows" else pool.as_action_items()
-    if isinstance(desc, dict) and desc.get("builder") == "multiact_pairs":
-        from repro.data.pairs import PairSource
-
-        pairs = PairSource.from_description(desc).train_items(clips)
-        return pairs if item_kind == "pairs" else pairs.as_action_items()
-    from repro.data.contexts import ItemSource
-
-    return ItemSource.from_description(desc).train_items(clips)
+    return source_from_description(cfg["items"]).training_items(clips, item_kind)
 
 
 def _write_values(ctx, values: dict) -> None:

@@ -84,11 +84,11 @@ import torch.nn.functional as F
 from pydantic import model_validator
 from torch import nn
 
+from repro.data.action_items import ActionItems, GeneratedItems, pad_last
 from repro.errors import ConfigError
 from repro.models.base import Generator, GeneratorConfig, register
 from repro.models.baseline_io import (check_items, item_noise, length_mask, pack_poses,
                                       pose_joints, to_generated, unpack_poses)
-from repro.models.items import ActionItems, GeneratedItems, pad_last
 from repro.motion.rotations import (axis_angle_to_matrix, matrix_to_6d, matrix_to_axis_angle,
                                     sixd_to_matrix)
 from repro.seeding import derive_seed

@@ -50,10 +50,10 @@ import torch.nn.functional as F
 from pydantic import model_validator
 from torch import nn
 
+from repro.data.action_items import ActionItems, GeneratedItems
 from repro.models.base import Generator, GeneratorConfig, register
 from repro.models.baseline_io import (check_items, item_noise, length_mask, pack_poses,
                                       pose_dim, pose_joints, to_generated)
-from repro.models.items import ActionItems, GeneratedItems
 from repro.models.layers import TransformerDecoder, TransformerEncoder, sinusoidal_encoding
 from repro.seeding import derive_seed
 from repro.train.loop import to_device

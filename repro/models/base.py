@@ -22,7 +22,7 @@ and four operations:
 
 Conditions differ per method: ACTOR and ODMO read only the label (and the duration); MarioNet,
 MANN and the adapted Action2Motion read label + initial motion + duration + next label +
-trajectory.  :class:`repro.models.items.ActionItems` carries all of them and each method reads
+trajectory.  :class:`repro.data.action_items.ActionItems` carries all of them and each method reads
 what it uses (declared in ``uses`` so protocols can say what a method saw).
 """
 

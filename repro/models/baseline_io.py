@@ -2,7 +2,7 @@
 vector, seeded noise and the way generated poses go back to the world.
 
 Neural Marionette (supp. Sec. 4.1) trains every baseline "on the same data" as MarioNet, so all
-three read :class:`repro.models.items.ActionItems` in each item's Marionette-normalised frame
+three read :class:`repro.data.action_items.ActionItems` in each item's Marionette-normalised frame
 (the last initial pose ``P₋₁`` at the origin facing +Z, Alg. 1) and return their motions through
 the same inverse (Eq. 5), :meth:`ActionItems.to_world`.
 
@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import torch
 
+from repro.data.action_items import ActionItems, GeneratedItems, pad_last
 from repro.errors import ConfigError, DataError
-from repro.models.items import ActionItems, GeneratedItems, pad_last
 from repro.motion.motion import Motion
 from repro.motion.rotations import matrix_to_6d, sixd_to_matrix
 from repro.motion.skeleton import forward_kinematics
@@ -58,7 +58,7 @@ def check_items(gen, items) -> None:
     """``items`` must be non-empty ActionItems on the generator's skeleton, classes and fps."""
     who = gen.method_id
     if not isinstance(items, ActionItems):
-        raise TypeError(f"{who} needs repro.models.items.ActionItems, got {type(items).__name__}")
+        raise TypeError(f"{who} needs repro.data.action_items.ActionItems, got {type(items).__name__}")
     if items.skeleton != gen.skeleton:
         raise DataError(f"{who}: items use a different skeleton "
                         f"({items.skeleton.fingerprint()[:12]} vs {gen.skeleton.fingerprint()[:12]})")

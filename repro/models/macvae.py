@@ -67,12 +67,12 @@ import torch
 import torch.nn.functional as F
 from pydantic import model_validator
 
+from repro.data.action_items import pad_last
 from repro.data.pairs import GeneratedPairs, PairItems
 from repro.errors import ConfigError, DataError
 from repro.models.base import Generator, GeneratorConfig, register
 from repro.models.baseline_io import (item_noise, length_mask, pack_poses, pose_joints,
                                       unpack_poses)
-from repro.models.items import pad_last
 from repro.models.macvae_nets import MACVAENet, hold_frames, kl_gaussians, take_frames
 from repro.motion.canon import CanonParams, face_front, uncanonicalize, zero_canon
 from repro.motion.motion import Motion

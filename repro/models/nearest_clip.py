@@ -31,9 +31,9 @@ import torch
 from pydantic import Field
 from torch import nn
 
+from repro.data.action_items import ActionItems, GeneratedItems, pad_last
 from repro.errors import ConfigError, DataError
 from repro.models.base import Generator, GeneratorConfig, register
-from repro.models.items import ActionItems, GeneratedItems, pad_last
 from repro.motion.motion import Motion
 from repro.seeding import numpy_rng
 
@@ -108,7 +108,7 @@ class NearestClip(Generator):
 
     def _check_items(self, items: ActionItems) -> None:
         if not isinstance(items, ActionItems):
-            raise TypeError("nearest_clip needs repro.models.items.ActionItems")
+            raise TypeError("nearest_clip needs repro.data.action_items.ActionItems")
         if items.skeleton != self.skeleton:
             raise DataError("nearest_clip: items use a different skeleton than the model")
         if items.n_classes != self.n_classes:

@@ -87,6 +87,7 @@ import torch.nn.functional as F
 from pydantic import model_validator
 from torch import nn
 
+from repro.data.action_items import pad_last
 from repro.data.pairs import GeneratedPairs, PairItems, gather_frames, last_frames
 from repro.errors import ConfigError, DataError
 from repro.models.base import Generator, GeneratorConfig, register
@@ -97,7 +98,6 @@ from repro.models.baseline_io import (
     pose_joints,
     unpack_poses,
 )
-from repro.models.items import pad_last
 from repro.models.layers import TransformerEncoder
 from repro.motion.canon import canonicalize_with, face_front, uncanonicalize
 from repro.motion.motion import Motion
