@@ -459,7 +459,7 @@ def json_schema() -> dict:
 
 def load_dataset_spec(path: str | Path) -> DatasetSpec:
     """Read and validate a spec file; SpecError naming the file and field otherwise."""
-    from repro.specs.load import _problems_from_validation, read_toml
+    from repro.specs.load import problems_from_validation, read_toml
 
     path = Path(path)
     # read once, a regular file of at most MAX_SPEC_BYTES (a FIFO or a device is refused)
@@ -469,7 +469,7 @@ def load_dataset_spec(path: str | Path) -> DatasetSpec:
     except ValidationError as e:
         from repro.specs.load import SpecValidationError
 
-        raise SpecValidationError(_problems_from_validation(e, data, DatasetSpec, path), path,
+        raise SpecValidationError(problems_from_validation(e, data, DatasetSpec, path), path,
                                   check_command=f"repro data check {path}") from None
     lab = spec.labels
     if lab.from_ == "filename" and not lab.pattern:
