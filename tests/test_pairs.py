@@ -11,7 +11,8 @@ import pytest
 import torch
 
 from repro.data.clipset import TEST, TRAIN
-from repro.data.pairs import PairItems, PairSource
+from repro.data.pairs import PairItems
+from repro.data.pairs_build import PairSource
 from repro.data.sequences import ROLE_ACTION, ROLE_LEAD_IN
 from repro.errors import ConfigError, DataError
 from repro.motion.motion import Motion

@@ -20,10 +20,11 @@ import numpy as np
 
 from repro.data.dataset_asf import inner_path, read_skeleton_files
 from repro.data.dataset_labels import clip_stem
+from repro.data.dataset_registration import spec_key
 from repro.data.dataset_skeleton import convert_amc, convert_bvh, one_skeleton
 from repro.data.dataset_spec import (FPS_RTOL, MAX_LABELS_BYTES, PREPARE_VERSION, DatasetSpec,
                                      escape_name, is_excluded, key_material,
-                                     load_dataset_spec, naming_material, role_of, spec_key)
+                                     load_dataset_spec, naming_material, role_of)
 from repro.data.prepare_caps import FrameBudget, check_finite, joints_f32
 from repro.data.prepare_caps import resample_clip as resample_long
 from repro.errors import DataError, MissingDataError

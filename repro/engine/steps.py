@@ -71,7 +71,7 @@ def training_items(cfg: dict, clips, item_kind: str = "actions"):
     """The items a method trains on: described by ``cfg["items"]``, so every protocol that
     makes items the same way shares the trained model.  The description is a
     :class:`repro.data.contexts.ItemSource` (Neural Marionette's single actions), or, with
-    ``builder = "multiact_pairs"``, a :class:`repro.data.pairs.PairSource` (MultiAct's
+    ``builder = "multiact_pairs"``, a :class:`repro.data.pairs_build.PairSource` (MultiAct's
     [S_p, T, S_c] samples); a method whose ``item_kind`` is ``"actions"`` (ACTOR) trains on the
     pairs' current actions (:meth:`repro.data.pairs.PairItems.as_action_items`); with
     ``builder = "odmo_windows"`` a :class:`repro.data.odmo_items.WindowItems` pool (ODMO's
@@ -84,7 +84,7 @@ def training_items(cfg: dict, clips, item_kind: str = "actions"):
         pool = WindowSource.from_description(desc).train_items(clips)
         return pool if item_kind == "windows" else pool.as_action_items()
     if isinstance(desc, dict) and desc.get("builder") == "multiact_pairs":
-        from repro.data.pairs import PairSource
+        from repro.data.pairs_build import PairSource
 
         pairs = PairSource.from_description(desc).train_items(clips)
         return pairs if item_kind == "pairs" else pairs.as_action_items()
