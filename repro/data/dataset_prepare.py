@@ -140,7 +140,7 @@ def _check_expect(spec: DatasetSpec, spec_path: Path, clips: int, frames: int, j
 def _body(skel, spec_path: Path):
     """The body frame every protocol takes the heading from (the hips by name, or the spec's
     ``[skeleton] hips`` / ``up_joint``); an up joint in a leg is refused."""
-    from repro.motion.heading import _ancestors, body_frame
+    from repro.motion.heading import ancestors, body_frame
 
     try:
         body = body_frame(skel)
@@ -149,7 +149,7 @@ def _body(skel, spec_path: Path):
                         "LeftUpLeg / UpperLeg_L / l_hip; or name them: [skeleton] hips = "
                         "[left, right], up_joint = ...)", spec_path) from None
     L, R, U = (skel.index(n) for n in body.joints)
-    if {L, R} & set(_ancestors(skel, U)):
+    if {L, R} & set(ancestors(skel, U)):
         raise DataError(f"the up joint {body.joints[2]!r} is in a leg (below a hip); name a "
                         "joint above the pelvis: [skeleton] up_joint", spec_path)
     return body
