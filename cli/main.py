@@ -227,7 +227,7 @@ def _dataset_specs(args) -> None:
     data set, not a path on this machine."""
     text = getattr(args, "dataset", None)
     if isinstance(text, str) and text.endswith(".toml"):
-        from repro.data.dataset_spec import is_spec_path, register_spec_path
+        from repro.data.dataset_registration import is_spec_path, register_spec_path
         from repro.errors import ConfigError
 
         if not is_spec_path(text):

@@ -246,7 +246,8 @@ def test_limits_are_validated(tmp_path, value):
 
 def test_limits_stay_out_of_the_fingerprint(tmp_path):
     """Caps refuse data, they never change its bytes: a spec keeps its key with [limits]."""
-    from repro.data.dataset_spec import key_material, load_dataset_spec, spec_key
+    from repro.data.dataset_registration import spec_key
+    from repro.data.dataset_spec import key_material, load_dataset_spec
 
     plain = write_set(tmp_path / "a", 10)
     lifted = write_set(tmp_path / "b", 10, frames_toml="[limits]\nmax_clip_frames = 9000000\n"

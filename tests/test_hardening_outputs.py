@@ -299,11 +299,11 @@ def test_markdown_escapes_html_and_latex_escapes_every_special():
 # ------------------------------------------------------------------------ run readers (review)
 def _table1_run(summary=None, **config):
     """A FINISHED plain run of Marionette Table 1 at the quick scale (what `repro show` picks)."""
-    from repro.engine.runner import _scale, _spec
+    from repro.engine.runner import table_scale, table_spec
 
-    sc = _scale("quick", None)
+    sc = table_scale("quick", None)
     r = RunRecorder(table="marionette/table1", scale=sc.name,
-                    dataset=sc.dataset_for(_spec("marionette/table1")),
+                    dataset=sc.dataset_for(table_spec("marionette/table1")),
                     config={"budget": 1.0, "evaluator_seed": 0, "retrain": False, **config})
     with r:
         r.write_summary(summary if summary is not None else {"rows": {}, "footer": []})

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import pytest
 
-from repro.data import dataset_labels, dataset_spec, sources
+from repro.data import dataset_labels, dataset_registration, dataset_spec, sources
 from repro.data.dataset_prepare import SkippedFiles, prepare_dataset
 from repro.data.dataset_spec import DatasetSpec, load_dataset_spec
 from repro.errors import DataError, SpecError
@@ -552,10 +552,10 @@ def test_the_spec_key_of_an_archive_source_holds_the_naming_rule(tmp_path, monke
     arc, folder = archive_for_fp(tmp_path / "a"), tmp_path / "f"
     write_takes(folder)
     fspec = write_spec(folder)
-    keys = {p: dataset_spec.spec_key(load_dataset_spec(p), p) for p in (arc, fspec)}
+    keys = {p: dataset_registration.spec_key(load_dataset_spec(p), p) for p in (arc, fspec)}
     monkeypatch.setattr(dataset_spec, "ARCHIVE_NAMING", {"archive_root_names": "older"})
-    assert dataset_spec.spec_key(load_dataset_spec(arc), arc) != keys[arc]
-    assert dataset_spec.spec_key(load_dataset_spec(fspec), fspec) == keys[fspec]
+    assert dataset_registration.spec_key(load_dataset_spec(arc), arc) != keys[arc]
+    assert dataset_registration.spec_key(load_dataset_spec(fspec), fspec) == keys[fspec]
 
 
 # ------------------------------------------------------------------ review: TOML files

@@ -48,7 +48,7 @@ def _yawed(seqs, seed: int):
         seqs, rotations=q.astype(np.float32), root=rot(seqs.root).astype(np.float32),
         joints=rot(seqs.joints).astype(np.float32),
         seg_yaw=np.asarray(seqs.seg_yaw) + yaw_seq[seqs.seg_seq],
-        fingerprint=content_key({"base": seqs.fingerprint, "test-yaw": seed}), _cache={})
+        fingerprint=content_key({"base": seqs.fingerprint, "test-yaw": seed}), memo={})
 
 
 def test_keys_values_and_determinism(seqs):

@@ -95,7 +95,7 @@ def _prepare(args: argparse.Namespace) -> int:
 
     if args.name in SEQUENCE_VIEWS:
         return _prepare_view(args)
-    from repro.data.dataset_spec import is_spec_path, spec_file_of
+    from repro.data.dataset_registration import is_spec_path, spec_file_of
 
     spec_file = args.name if is_spec_path(args.name) else spec_file_of(args.name)
     if spec_file is not None:
@@ -124,7 +124,7 @@ def _prepare(args: argparse.Namespace) -> int:
 def _prepare_spec(args: argparse.Namespace, spec_file) -> int:
     """A data set declared by a spec file (repro.data.dataset_spec)."""
     from repro.data.dataset_prepare import prepare_dataset
-    from repro.data.dataset_spec import register_spec_path
+    from repro.data.dataset_registration import register_spec_path
     from repro.data.registry import clipset_summary, get_entry
     from repro.errors import ConfigError
 

@@ -332,11 +332,11 @@ def cmd_show(args) -> int:
 
 @_on_device(computes=True)
 def cmd_rescore(args) -> int:
-    from repro.engine.runner import _scale, _spec, latest_run, run_table, table_view
+    from repro.engine.runner import latest_run, run_table, table_scale, table_spec, table_view
     from repro.errors import ConfigError
     from repro.report import render
 
-    spec, sc = _spec(args.table), _scale(args.scale, args.dataset)
+    spec, sc = table_spec(args.table), table_scale(args.scale, args.dataset)
     ds = args.dataset or sc.dataset_for(spec)
     if latest_run(spec.id, sc.name, ds) is None:  # nothing stored to re-measure: say so, train nothing
         from repro.engine.footer import run_hint
@@ -357,15 +357,15 @@ def cmd_verify(args) -> int:
     from pathlib import Path
 
     from repro.engine.baselines import write_baseline
-    from repro.engine.runner import _scale, _spec, latest_run, verify_table
+    from repro.engine.runner import latest_run, table_scale, table_spec, verify_table
     from repro.errors import ConfigError
     from repro.store.runs import read_run_json
 
     failed = False
     for name in args.tables:
-        spec = _spec(name)
+        spec = table_spec(name)
         if args.update:
-            sc = _scale(args.scale, args.dataset)
+            sc = table_scale(args.scale, args.dataset)
             ds = args.dataset or sc.dataset_for(spec)
             path = latest_run(spec.id, sc.name, ds, retrain=False)  # baselines: one model per row
             if path is None:

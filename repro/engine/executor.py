@@ -207,7 +207,7 @@ def _run_payload(fn, job: Job, key: str, inputs, store: Store, logger, force: bo
                  threads: int | None, progress) -> tuple[str, StoredObject]:
     from repro.keys import sha256_file
     from repro.store.atomic import utc_now
-    from repro.store.objects import _payload_files
+    from repro.store.objects import payload_files
 
     if job.cacheable:
         def payload(out: Path) -> None:
@@ -225,7 +225,7 @@ def _run_payload(fn, job: Job, key: str, inputs, store: Store, logger, force: bo
     scratch.mkdir()
     fn(JobContext(job, key, inputs, out, scratch, logger, threads, progress))
     files = {rel: {"sha256": sha256_file(p), "size": p.stat().st_size}
-             for rel, p in _payload_files(out)}
+             for rel, p in payload_files(out)}
     return UNCACHED, StoredObject(key, job.kind, out, files, utc_now(), _meta(job),
                                   hit=False, ephemeral=True)
 

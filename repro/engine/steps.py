@@ -39,7 +39,8 @@ def clipset(dataset: str):
     return load_clipset(dataset)
 
 
-def _protocol(cfg):
+def protocol_of(cfg):
+    """The protocol a step's config names (``protocol`` with its ``protocol_params``)."""
     from repro.eval.protocols import get_protocol
 
     return get_protocol(cfg["protocol"], cfg["protocol_params"])
@@ -61,7 +62,7 @@ def evaluator_for(cfg: dict, weights: bool = True):
     from repro.eval.provider import get_evaluator
 
     ev = cfg["evaluator"]
-    clips = evaluator_clipset(_protocol(cfg), clipset(cfg["dataset"]))
+    clips = evaluator_clipset(protocol_of(cfg), clipset(cfg["dataset"]))
     return get_evaluator(ev["dataset"], ev["kind"], ev["scale"], ev["seed"], clipset=clips,
                          heading=ev.get("heading"), overrides=ev.get("settings"),
                          weights=weights)
@@ -146,7 +147,7 @@ def _replicate_inputs(ctx):
     items."""
     cfg = ctx.config
     ctx.seed_globals()
-    proto = _protocol(cfg)
+    proto = protocol_of(cfg)
     clips = clipset(cfg["dataset"])
     return cfg, proto, clips, proto.test_items(clips)
 

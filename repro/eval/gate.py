@@ -168,7 +168,8 @@ def _spec_gate(dataset: str | None):
     a built-in data set or one no spec declares."""
     if not dataset:
         return None, None
-    from repro.data.dataset_spec import load_dataset_spec, spec_file_of
+    from repro.data.dataset_registration import spec_file_of
+    from repro.data.dataset_spec import load_dataset_spec
 
     path = spec_file_of(dataset)
     if path is None:

@@ -183,7 +183,7 @@ def _rmtree(path: Path) -> None:
         shutil.rmtree(path, onerror=onerror)
 
 
-def _payload_files(folder: Path) -> Iterator[tuple[str, Path]]:
+def payload_files(folder: Path) -> Iterator[tuple[str, Path]]:
     """(manifest name, path) of every payload file under ``folder``, sorted; refuses links."""
     for p in sorted(folder.rglob("*")):
         rel = p.relative_to(folder).as_posix()
@@ -348,7 +348,7 @@ class Store:
         stamps = self._load_stamps(key) if use_stamps else {}
         expected = man["files"]
         try:
-            present = {rel for rel, _ in _payload_files(d)}
+            present = {rel for rel, _ in payload_files(d)}
         except (ValueError, OSError) as e:
             return None, str(e)
         extra = sorted(present - set(expected))
@@ -452,7 +452,7 @@ class Store:
 
     def _publish(self, key: str, kind: str, tmp: Path, meta: dict | None) -> StoredObject:
         files = {}
-        for rel, p in _payload_files(tmp):
+        for rel, p in payload_files(tmp):
             files[rel] = {"sha256": _hash_file_fsync(p), "size": p.stat().st_size}
         if (tmp / MANIFEST).exists():
             raise ValueError(f"a payload may not contain a file named {MANIFEST} (reserved)")
@@ -678,4 +678,4 @@ def describe_bytes(n: int) -> str:
 
 
 __all__ = ["Store", "StoredObject", "ObjectInfo", "CorruptObject", "VerifyReport", "GcReport",
-           "STORE_SCHEMA", "check_key", "describe_bytes"]
+           "STORE_SCHEMA", "check_key", "describe_bytes", "payload_files"]
