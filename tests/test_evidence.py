@@ -216,3 +216,15 @@ def test_a_record_without_evidence_says_so():
     fid = next(c for c in view.claims if c.id == "fid_best")
     assert fid.verdict == "contradicted" and fid.evidence == NO_EVIDENCE
     assert "decided by: not recorded" in render(view, "md")
+
+
+def test_the_evaluator_is_said_to_be_trained_on_the_runs_data_set():
+    """A built-in stand-in is "the stand-in"; a data set a spec declares is named as own data
+    (issue 28: never called a stand-in)."""
+    from repro.engine.evidence import evaluator_text
+
+    ev = {"kind": "transformer", "seed": 0}
+    assert evaluator_text(ev).endswith("(trained by the harness on the stand-in)")
+    assert evaluator_text(ev, "bandai2-mini").endswith("on the stand-in)")
+    assert evaluator_text(ev, "lab-styles").endswith("on lab-styles (own data))")
+    assert evaluator_text(None, "lab-styles") is None

@@ -1,4 +1,4 @@
-"""Single-action items (repro.models.items): cutting, Marionette normalisation and its exact
+"""Single-action items (repro.data.action_items): cutting, Marionette normalisation and its exact
 inverse, data-driven in-place classes and trajectories, motion-graph next tags, keys."""
 
 from __future__ import annotations

@@ -13,6 +13,18 @@ def test_identical_features_give_zero():
     assert multimodality(f, np.arange(50) % 5, 5, seed=3) == 0.0
 
 
+def test_one_sample_per_class_is_not_measured():
+    # own data with one test clip per class: no within-class pair exists, so the value is NaN
+    # (a table's "not measured"), never a 0 that a claim would be decided on
+    f = np.random.default_rng(1).normal(size=(4, 6))
+    assert np.isnan(multimodality(f, [0, 1, 2, 3], 4, seed=0))
+    # one class with two samples: measured; the singleton classes contribute 0 (pairs drawn
+    # with replacement, as the released code draws them), the divisor stays C
+    y = [0, 0, 1, 2]
+    got = multimodality(f, y, 3, per_class=20_000, seed=0)
+    assert got == pytest.approx(np.linalg.norm(f[0] - f[1]) / 2 / 3, rel=0.03)
+
+
 def test_seeded_and_deterministic():
     f = np.random.default_rng(0).normal(size=(100, 30))
     assert diversity(f, seed=1) == diversity(f, seed=1)

@@ -243,7 +243,12 @@ def qualified_verdict(verdict: str, evidence: dict) -> str:
     return CONTRADICTED
 
 
-def evaluator_text(ev: dict | None) -> str | None:
+def evaluator_text(ev: dict | None, dataset: str | None = None) -> str | None:
+    """The evaluator in a claim's evidence; it was trained on the run's data set: "the
+    stand-in" for a built-in one (or when none is named), the set's name for one a data-set
+    spec declares (issue 28: own data is never called a stand-in)."""
+    from repro.specs import names
+
     if not ev:
         return None
     s = f"{ev.get('kind')} seed {ev.get('seed', 0)}"
@@ -251,4 +256,7 @@ def evaluator_text(ev: dict | None) -> str | None:
         s += f", heading {ev['heading']}"
     for k, v in sorted((ev.get("settings") or {}).items()):
         s += f", {k} {v}"
-    return s + " (trained by the harness on the stand-in)"
+    info = names.DATASETS.get(dataset) if dataset is not None else None
+    where = "the stand-in" if dataset is None or (info is not None and info.standin) \
+        else f"{dataset} (own data)"
+    return s + f" (trained by the harness on {where})"

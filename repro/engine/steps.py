@@ -21,6 +21,7 @@ jobs score with the evaluator on the CPU.
 from __future__ import annotations
 
 import json
+import math
 from functools import lru_cache
 
 GENERATED = "generated.npz"
@@ -80,7 +81,9 @@ def training_items(cfg: dict, clips, item_kind: str = "actions"):
 
 
 def _write_values(ctx, values: dict) -> None:
-    clean = {k: (None if v is None else float(v)) for k, v in values.items()}
+    # a non-finite value (e.g. multimodality with no within-class pair) is "not measured"
+    clean = {k: (None if v is None or not math.isfinite(float(v)) else float(v))
+             for k, v in values.items()}
     (ctx.out / VALUES).write_text(json.dumps({"schema": 1, "values": clean}, sort_keys=True))
 
 

@@ -55,7 +55,12 @@ def diversity(feats, n_pairs: int = DIVERSITY_PAIRS, seed=0) -> float:
 
 def multimodality(feats, labels, n_classes: int, per_class: int = MULTIMODALITY_PAIRS_PER_CLASS,
                   seed=0, early_break: bool = False) -> float:
-    """Within-class distance: ``per_class`` same-label pairs per class, sum / (per_class·C)."""
+    """Within-class distance: ``per_class`` same-label pairs per class, sum / (per_class·C).
+
+    Pairs are drawn with replacement, as the released code draws them (ACTOR, Action2Motion),
+    so a class with one sample contributes zero.  When no class has two samples (a data set with
+    one test clip per class) there is no within-class pair at all: the value is NaN, which a
+    table shows as "not measured" rather than a zero that claims would be decided on."""
     f = float_array(feats, "features", ndim=2, min_len=1)
     y = int_array(labels, "labels", n=f.shape[0])
     check_classes(y, n_classes, "labels")
@@ -66,6 +71,8 @@ def multimodality(feats, labels, n_classes: int, per_class: int = MULTIMODALITY_
     if absent.size and not early_break:
         raise DataError(f"multimodality: classes {absent.tolist()} have no samples (the reference "
                         "quota loop never ends); pass early_break=True for MultiAct's variant")
+    if counts.max() < 2:
+        return float("nan")
     rng = _rng(seed, "multimodality")
     order = np.argsort(y, kind="stable")
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
