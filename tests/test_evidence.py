@@ -171,7 +171,7 @@ def test_qualified_verdicts_and_epoch_scaling():
 
 
 def test_every_render_format_prints_the_evidence():
-    from repro.engine.tables import make_view
+    from repro.engine.table_view import make_view
     from repro.report import render
 
     spec, plan = _plan("quick")
@@ -187,7 +187,7 @@ def test_every_render_format_prints_the_evidence():
 def test_uncertain_paper_cells_are_marked():
     """Regression (issue 11, item 6): NM Table 1's Real FID "1" is marked uncertain in the
     spec; every view shows that mark and says what it means."""
-    from repro.engine.tables import make_view
+    from repro.engine.table_view import make_view
     from repro.report import render
 
     spec, plan = _plan("quick")
@@ -204,7 +204,7 @@ def test_uncertain_paper_cells_are_marked():
 def test_a_record_without_evidence_says_so():
     """A summary recorded before verdicts carried their evidence is shown with a line saying
     the evidence was not recorded, never as a bare verdict."""
-    from repro.engine.tables import NO_EVIDENCE, make_view
+    from repro.engine.table_view import NO_EVIDENCE, make_view
     from repro.report import render
 
     spec, plan = _plan("quick")

@@ -299,7 +299,8 @@ def test_test_sets_reach_the_table_json(setup, monkeypatch):
     import json
 
     from repro.engine import table_facts
-    from repro.engine.tables import build_plan, make_view
+    from repro.engine.table_view import make_view
+    from repro.engine.tables import build_plan
     from repro.report import render
     from repro.specs.load import find_spec
     from repro.specs.scales import resolve_scale

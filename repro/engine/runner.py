@@ -439,7 +439,8 @@ def table_run(spec, scale: str = "quick", dataset: str | None = None,
 def table_view(name: str, *, scale: str = "quick", dataset: str | None = None, run: str | None = None):
     """The view of a table: from a run (the newest finished one by default) or, when there is
     none, the paper's values beside "not run" cells."""
-    from repro.engine.tables import build_plan, make_view, unbuilt_columns
+    from repro.engine.table_view import make_view
+    from repro.engine.tables import build_plan, unbuilt_columns
 
     from repro.engine.footer import failure_line, gate_mark
 

@@ -134,7 +134,7 @@ def build_record(axis: str, runs: list[tuple[Any, Any, dict, str]]) -> dict:
 
 
 def _text(spec, cl) -> str:
-    from repro.engine.tables import claim_text
+    from repro.engine.table_view import claim_text
 
     return claim_text(spec, cl)
 
