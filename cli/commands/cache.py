@@ -32,7 +32,8 @@ def register(subparsers) -> None:
 
 
 def _ls(args: argparse.Namespace) -> int:
-    from repro.store.objects import Store, describe_bytes
+    from repro.store.object_files import describe_bytes
+    from repro.store.objects import Store
 
     store = Store()
     infos = store.ls(kind=args.kind)
@@ -82,7 +83,7 @@ def _verify(args: argparse.Namespace) -> int:
 
 
 def _gc(args: argparse.Namespace) -> int:
-    from repro.store.objects import describe_bytes
+    from repro.store.object_files import describe_bytes
     from repro.store.runs import collect_garbage
 
     rep = collect_garbage(dry_run=args.dry_run, include_scratch=args.scratch)

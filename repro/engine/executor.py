@@ -59,7 +59,8 @@ from typing import Any
 from repro.engine import plan as planmod
 from repro.errors import ReproError
 from repro.engine.job import Job, JobContext, topo_order
-from repro.store.objects import Store, StoredObject
+from repro.store.object_files import StoredObject
+from repro.store.objects import Store
 
 HIT = "hit"              # found in the store (or computed meanwhile by another process)
 COMPUTED = "computed"    # computed and published by this call
@@ -207,7 +208,7 @@ def _run_payload(fn, job: Job, key: str, inputs, store: Store, logger, force: bo
                  threads: int | None, progress) -> tuple[str, StoredObject]:
     from repro.keys import sha256_file
     from repro.store.atomic import utc_now
-    from repro.store.objects import payload_files
+    from repro.store.object_files import payload_files
 
     if job.cacheable:
         def payload(out: Path) -> None:

@@ -52,7 +52,8 @@ from repro.engine.executor import (CANCELLED, INTERRUPTED, Backend, ProgressHook
                                    dispatch_progress, run_in_worker)
 from repro.engine.job import Job
 from repro.errors import ConfigError
-from repro.store.objects import Store, StoredObject
+from repro.store.object_files import StoredObject
+from repro.store.objects import Store
 
 INSTALL_HINT = "pip install 'repro[ray]'"
 _STOP_GRACE_S = 10.0  # after a polite cancel (KeyboardInterrupt in the task), force-kill
