@@ -1,6 +1,5 @@
-"""Content-addressed store (``objects``; what one object is, its records and files:
-``object_files``) and run records (``runs`` writes them, ``run_files`` reads them back,
-``index`` indexes them).
+"""Content-addressed store (``objects``) and run records (``runs`` writes them, ``run_files``
+reads them back, ``index`` indexes them).
 
 See ``docs/store.md``.  The names below are loaded lazily (PEP 562) so that importing one
 submodule does not pull in the others (this keeps the source hash of job implementations that
@@ -12,8 +11,8 @@ from __future__ import annotations
 import importlib
 
 _EXPORTS = {
-    "Store": "objects", "StoredObject": "object_files", "ObjectInfo": "object_files",
-    "CorruptObject": "object_files", "VerifyReport": "object_files", "GcReport": "object_files",
+    "Store": "objects", "StoredObject": "objects", "ObjectInfo": "objects",
+    "CorruptObject": "objects", "VerifyReport": "objects", "GcReport": "objects",
     "RunRecorder": "runs", "collect_garbage": "runs", "RunRecord": "run_files",
     "load_run": "run_files", "resolve_run": "run_files", "QUEUED": "run_files",
     "RUNNING": "run_files", "FINISHED": "run_files", "FAILED": "run_files",
