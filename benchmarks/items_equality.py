@@ -153,7 +153,10 @@ def band_sets(proto, clips) -> dict:
 def dump(path: str) -> None:
     import torch
 
-    from repro.engine.runner import _scale, _spec
+    try:  # the names since issue 30's cycle clean-up; a tree before it has the private ones
+        from repro.engine.runner import table_scale as _scale, table_spec as _spec
+    except ImportError:
+        from repro.engine.runner import _scale, _spec
     from repro.engine.steps import clipset
     from repro.engine.tables import build_plan
     from repro.eval.protocols import get_protocol

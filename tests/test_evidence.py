@@ -5,6 +5,9 @@ variance, is "not reproduced", and only a paper-budget run with --retrain reads
 
 from __future__ import annotations
 
+import json
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -227,4 +230,28 @@ def test_the_evaluator_is_said_to_be_trained_on_the_runs_data_set():
     assert evaluator_text(ev).endswith("(trained by the harness on the stand-in)")
     assert evaluator_text(ev, "bandai2-mini").endswith("on the stand-in)")
     assert evaluator_text(ev, "lab-styles").endswith("on lab-styles (own data))")
+    assert evaluator_text(ev, "humanact12").endswith("on humanact12)")  # a paper's data set
     assert evaluator_text(None, "lab-styles") is None
+
+
+def test_a_metric_that_could_not_be_measured_decides_no_claim(tmp_path):
+    """A NaN value (multimodality with one sample per class, repro.metrics.diversity) is no
+    value: the cell is absent from the summary and a claim on it is "not evaluated"."""
+    from repro.engine.steps import write_values
+
+    spec, plan = _plan("quick")
+    values = _table1_values(spec, marionet_fid=1.0)
+    for row in ("mann", "a2m", "marionet", "actor"):
+        values += [{**v, "column": "multimod", "metric": "multimod", "value": None}
+                   for v in _values(spec, {row: {"multimod": [0.0] * 5}})]
+    s = summarise(plan, values)
+    assert all("multimod" not in cols for cols in s["cells"].values())
+    c = _claim(s, "multimod_mann_best_of_three")
+    assert c["verdict"] == "not evaluated" and c["probability"] is None
+    assert "no reproduced values for row 'mann' in column 'multimod'" in c["reason"]
+
+    # the job's values file: a NaN is written as no value
+    ctx = SimpleNamespace(out=tmp_path)
+    write_values(ctx, {"multimod": float("nan"), "fid": 1.5})
+    got = json.loads(next(tmp_path.iterdir()).read_text())["values"]
+    assert got == {"multimod": None, "fid": 1.5}

@@ -162,7 +162,7 @@ def walk(name: str, tmp_path: Path, capsys, bundled):
 
 def prepared(spec: Path):
     """The prepared ClipSet of ``spec``."""
-    from repro.data.dataset_spec import register_spec_path
+    from repro.data.dataset_registration import register_spec_path
     from repro.data.registry import load_clipset
 
     return load_clipset(register_spec_path(str(spec)))
@@ -300,13 +300,16 @@ def test_an_asf_amc_set_with_subjects_by_its_spec_alone(tmp_path, fresh_registry
     out = ok(run(prepare_cmd("subjects"), own.SUBJECTS_SPEC))
     flat = " ".join(out.split())
     assert "lab-subjects: prepared: 66 clips" in out and "subjects: 7" in out
-    assert "by up to 2.46 cm (joint 'Foot_L'), within [skeleton] offset_tolerance = 0.03 m" \
-        in flat
+    assert "by up to 2.46 cm (joint 'Foot_L'), within [skeleton] offset_tolerance = 0.03 m: " \
+        "every clip is posed on the reference's bones with its own root path (feet may float " \
+        "or sink by the difference)" in flat
     ok(run(plan_cmd("subjects"), own.SUBJECTS_SPEC))
 
     # every take read with its own subject's ASF and posed on subject 01's bones, which are
-    # the bundled skeleton's: the bundled joints (the root is 'root', the connector bones
-    # Hip_L ... are extra joints)
+    # the bundled skeleton's, with its own root path (subject n's: the bundled path times
+    # 1 + 0.01 (n - 1)): the bundled joints moved by the root's difference, so a taller
+    # subject's feet float by it (the root is 'root', the connector bones Hip_L ... are extra
+    # joints)
     got = prepared(spec)
     names = ["root" if n == "Hips" else n for n in bundled.skeleton.names]
     cols = [got.skeleton.names.index(n) for n in names]
@@ -315,7 +318,9 @@ def test_an_asf_amc_set_with_subjects_by_its_spec_alone(tmp_path, fresh_registry
         j = got.clip_names.index(clip)
         assert got.label_names[got.labels[j]] == action
         meta_subjects[clip] = subject
-        assert np.abs(_joints(got, j)[:, cols] - _joints(bundled, i)).max() < 1e-4, clip
+        want = _joints(bundled, i)
+        want = want + (own.subject_scale(subject) - 1) * want[:, :1]
+        assert np.abs(_joints(got, j)[:, cols] - want).max() < 1e-4, clip
     split = dict(zip(got.clip_names, np.asarray(got.split).tolist()))
     test_subjects = {meta_subjects[c] for c, s in split.items() if s == 1}
     assert test_subjects.isdisjoint({meta_subjects[c] for c, s in split.items() if s == 0})

@@ -18,7 +18,7 @@ shapes a lab's own capture comes in (issue 28):
   action, subject).  The seven performers are the mini's seven styles (subject 01 = active,
   ..., 07 = youthful; :data:`SUBJECTS`) and each subject's ASF has its own bone lengths, every
   bone ``1 + 0.01 · (n − 1)`` times the stand-in's (subject 01: the stand-in's own, 07: 6 %
-  longer).  ``run`` was captured with subjects 01, 02 and 04 only (:data:`FEW_SUBJECTS`).  The
+  longer), and its root path (hip height, travel) scaled the same way.  ``run`` was captured with subjects 01, 02 and 04 only (:data:`FEW_SUBJECTS`).  The
   ASF is the stand-in's skeleton in CMU's manner: a bone per joint, starting at it and
   reaching its (first) child, and bones without degrees of freedom where a joint's children
   start apart (``Hip_L``, ``Hip_R``, ``Waist`` from the root, ``Clavicle_L``,
@@ -335,7 +335,9 @@ def write_subjects_set(out: Path, clips=None) -> Path:
         if not folder.is_dir():
             folder.mkdir(parents=True)
             (folder / f"{subject}.asf").write_text(asf_text(sk, subject_scale(subject), subject))
-        (folder / f"{clip}.amc").write_text(amc_text(sk, *_motion(clips, i)))
+        R, root = _motion(clips, i)
+        # a taller subject's root is higher and travels further: the bundled path × its scale
+        (folder / f"{clip}.amc").write_text(amc_text(sk, R, root * subject_scale(subject)))
         rows.append(f"{clip},{action},{subject}")
     (out / "labels.csv").write_text("\n".join(rows) + "\n")
     spec = out / "subjects.toml"

@@ -80,7 +80,7 @@ def training_items(cfg: dict, clips, item_kind: str = "actions"):
     return source_from_description(cfg["items"]).training_items(clips, item_kind)
 
 
-def _write_values(ctx, values: dict) -> None:
+def write_values(ctx, values: dict) -> None:
     # a non-finite value (e.g. multimodality with no within-class pair) is "not measured"
     clean = {k: (None if v is None or not math.isfinite(float(v)) else float(v))
              for k, v in values.items()}
@@ -226,14 +226,14 @@ def measure(ctx) -> None:
         getattr(proto, "measure_uses_clipset", False)  # e.g. the harness columns' training bank
     extra = {"clipset": clips} if uses else {}
     values = proto.measure(generated, items, evaluator_for(cfg), seed=ctx.seed, **extra)
-    _write_values(ctx, values)
+    write_values(ctx, values)
 
 
 def measure_real(ctx) -> None:
     cfg, proto, clips, items = _replicate_inputs(ctx)
     values = proto.real_replicate(clips, items, evaluator_for(cfg), seed=ctx.seed,
                                   replicate=cfg["replicate"], **(cfg.get("real") or {}))
-    _write_values(ctx, values)
+    write_values(ctx, values)
 
 
 def read_values(obj) -> dict[str, float | None]:
