@@ -306,7 +306,7 @@ class DLowGen(Generator):
     method_id = "dlow_gen"
     Config = DLowGenConfig
     item_kind = "windows"
-    uses = frozenset({"label", "length"})
+    # ``uses``: Generator's default, the label and the length
 
     def __init__(self, config, skeleton, n_classes: int, fps: float):
         super().__init__(config, skeleton, n_classes, fps)
