@@ -66,8 +66,7 @@ def _snapshot(folder):
             for p in sorted(folder.rglob("*"))}
 
 
-@pytest.fixture
-def stub_plots(monkeypatch):
+def stub_report_plots(monkeypatch) -> None:
     """The report's plots drawn by stubs that write through the real file writers (what is
     tested is where files go, not matplotlib's drawing, which costs seconds a page)."""
     from repro.render import plots
@@ -80,6 +79,12 @@ def stub_plots(monkeypatch):
 
     for name in ("table_plot", "figure_plot", "learning_curve_plot"):
         monkeypatch.setattr(plots, name, plot)
+
+
+@pytest.fixture
+def stub_plots(monkeypatch):
+    """:func:`stub_report_plots` for one test."""
+    stub_report_plots(monkeypatch)
 
 
 def test_report_replaces_links_in_out_and_never_writes_through_them(tiny_tables, stub_plots,  # noqa: F811

@@ -443,23 +443,17 @@ def test_class_names_with_controls_are_refused(field, value):
 
 
 # ------------------------------------------------------------------ item 11: duplicates
-def test_a_json_labels_file_repeating_a_key_is_refused(tmp_path):
-    (tmp_path / "l.json").write_text('{"c0": "walk", "c1": "run", "c0": "run"}')
+@pytest.mark.parametrize("kind, text, match", [
+    ("json", '{"c0": "walk", "c1": "run", "c0": "run"}', "key 'c0' is given twice"),
+    ("json", '{"c0": {"action": "walk", "action": "run"}}', "key 'action' is given twice"),
+    ("csv", "clip,action,action\nc0,walk,run\n", "names column 'action' more than once"),
+], ids=["json-clip", "json-field", "csv-column"])
+def test_a_labels_file_repeating_a_key_or_column_is_refused(tmp_path, kind, text, match):
+    (tmp_path / f"l.{kind}").write_text(text)
     lab = DatasetSpec.model_validate({"schema": 1, "name": "x", "source": {"path": "t"},
-                                      "labels": {"from": "json", "file": "l.json"}}).labels
-    with pytest.raises(DataError, match="key 'c0' is given twice"):
-        dataset_labels._side_table(lab, tmp_path / "l.json")
-    (tmp_path / "l.json").write_text('{"c0": {"action": "walk", "action": "run"}}')
-    with pytest.raises(DataError, match="key 'action' is given twice"):
-        dataset_labels._side_table(lab, tmp_path / "l.json")
-
-
-def test_a_csv_header_repeating_a_column_is_refused(tmp_path):
-    (tmp_path / "l.csv").write_text("clip,action,action\nc0,walk,run\n")
-    lab = DatasetSpec.model_validate({"schema": 1, "name": "x", "source": {"path": "t"},
-                                      "labels": {"from": "csv", "file": "l.csv"}}).labels
-    with pytest.raises(DataError, match="names column 'action' more than once"):
-        dataset_labels._side_table(lab, tmp_path / "l.csv")
+                                      "labels": {"from": kind, "file": f"l.{kind}"}}).labels
+    with pytest.raises(DataError, match=match):
+        dataset_labels._side_table(lab, tmp_path / f"l.{kind}")
 
 
 def test_skipped_file_names_reach_the_card_escaped(tmp_path):

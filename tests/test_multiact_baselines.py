@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import roma
 import torch
+from model_fixtures import assert_resume_is_exact
 from model_fixtures import one_torch_thread  # noqa: F401 (fixture)
 from test_items import synthetic_clipset
 from torch import nn
@@ -153,21 +154,7 @@ def test_fit_decreases_loss(trained, pairs):
 
 def test_resume_is_exact(clips, pairs, trained, tmp_path):
     full, _ = trained
-
-    class Stop(Exception):
-        pass
-
-    def stop(epoch, rec):
-        if epoch == 1:
-            raise Stop
-
-    with pytest.raises(Stop):
-        ssmct(clips).fit(pairs, seed=3, ckpt_dir=tmp_path, on_epoch=stop)
-    resumed = ssmct(clips)
-    r = resumed.fit(pairs, seed=3, ckpt_dir=tmp_path)
-    assert r.resumed_from == 1
-    for (k, v), v2 in zip(full.network.state_dict().items(), resumed.network.state_dict().values()):
-        assert torch.equal(v, v2), k
+    assert_resume_is_exact(full, lambda: ssmct(clips), pairs, tmp_path, seed=3)
 
 
 def test_validation_curve_leaves_weights_alone(clips, pairs):

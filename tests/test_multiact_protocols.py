@@ -11,6 +11,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import torch
+from model_fixtures import one_torch_thread  # noqa: F401 (autouse fixture)
 from test_items import synthetic_clipset
 
 from repro.data.action_items import ActionItems, GeneratedItems
@@ -31,14 +32,6 @@ from repro.motion.motion import Motion
 from repro.seeding import numpy_rng, torch_generator
 
 L_P, L_T = 6, 4
-
-
-@pytest.fixture(autouse=True, scope="module")
-def one_torch_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
 
 
 # ---------------------------------------------------------------------------------------------

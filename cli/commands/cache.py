@@ -5,12 +5,13 @@ from __future__ import annotations
 import argparse
 import json
 
+from cli.commands import command_group
+
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("cache", help="inspect, verify and prune the artifact store",
-                              description="The content-addressed store under REPRO_HOME/store.")
-    sub = p.add_subparsers(dest="cache_command", metavar="SUBCOMMAND")
-    p.set_defaults(func=lambda args: (p.print_help(), 0)[1])
+    sub = command_group(subparsers, "cache", "inspect, verify and prune the artifact store",
+                        "The content-addressed store under REPRO_HOME/store.",
+                        "cache_command")
 
     ls = sub.add_parser("ls", help="list stored objects (kind, size, created)")
     ls.add_argument("--kind", help="only objects of this kind")

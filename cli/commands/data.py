@@ -6,12 +6,13 @@ import argparse
 import json
 import sys
 
+from cli.commands import command_group
+
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("data", help="prepare, describe and bundle data sets",
-                              description="Prepare, describe and bundle data sets.")
-    sub = p.add_subparsers(dest="data_command", metavar="SUBCOMMAND")
-    p.set_defaults(func=lambda args: (p.print_help(), 0)[1])
+    sub = command_group(subparsers, "data", "prepare, describe and bundle data sets",
+                        "Prepare, describe and bundle data sets.",
+                        "data_command")
 
     pp = sub.add_parser("prepare", help="parse a data set's source into the local cache")
     pp.add_argument("name", help="data set name (bandai2) or sequence view (bandai2-seq, "

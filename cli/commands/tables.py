@@ -88,6 +88,16 @@ def _fast_kernels_option(p: argparse.ArgumentParser) -> None:
                    "pinned baselines; docs/engine.md)")
 
 
+def _computing_options(p: argparse.ArgumentParser, func) -> None:
+    """The tail of a computing command (``run``, ``sweep``): ``--quiet``, the gate options,
+    ``--fast-kernels``, then its handler ``func``."""
+    p.add_argument("--quiet", action="store_true", help="no progress: neither bars (stdout "
+                   "a terminal) nor progress lines on stderr (stdout redirected)")
+    gate_options(p)
+    _fast_kernels_option(p)
+    p.set_defaults(func=func)
+
+
 def _retrain_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--retrain", action="store_true",
                    help="train one model per replicate (training seed = replicate seed), so the "
@@ -131,11 +141,7 @@ def register(sub) -> None:
     _retrain_option(p)
     p.add_argument("--format", default="term", type=output_format,
                    help="term | md | latex | html | json | csv")
-    p.add_argument("--quiet", action="store_true", help="no progress: neither bars (stdout "
-                   "a terminal) nor progress lines on stderr (stdout redirected)")
-    gate_options(p)
-    _fast_kernels_option(p)
-    p.set_defaults(func=cmd_run)
+    _computing_options(p, cmd_run)
 
     p = sub.add_parser("sweep", help="rerun a table at several training budgets or with "
                        "several evaluator seeds; cells and verdicts against the axis",
@@ -154,11 +160,7 @@ def register(sub) -> None:
     _retrain_option(p)
     p.add_argument("--format", default="term", choices=("term", "md", "json"),
                    help="term | md | json (default term)")
-    p.add_argument("--quiet", action="store_true", help="no progress: neither bars (stdout "
-                   "a terminal) nor progress lines on stderr (stdout redirected)")
-    gate_options(p)
-    _fast_kernels_option(p)
-    p.set_defaults(func=cmd_sweep)
+    _computing_options(p, cmd_sweep)
 
     p = sub.add_parser("show", help="print a table from its newest run (no computing)")
     p.add_argument("table")

@@ -127,6 +127,11 @@ def _no_controls(v, what: str):
     return v
 
 
+def _refuse_controls(what: str, *fields: str):
+    """A field validator of ``fields``: :func:`_no_controls`, ``what`` naming the value."""
+    return field_validator(*fields)(lambda v: _no_controls(v, what))
+
+
 class SourceSpec(_Strict):
     path: str = Field(description="folder or tar archive, relative to the spec file")
     format: Literal["bvh", "asf_amc"] = "bvh"
@@ -141,10 +146,7 @@ class SourceSpec(_Strict):
                             "(with * ? or [): each AMC clip takes the ASF it matches in its own "
                             "folder, else in the nearest folder above (CMU: one per subject)")
 
-    @field_validator("path")
-    @classmethod
-    def _plain(cls, v):
-        return _no_controls(v, "a path")
+    _plain = _refuse_controls("a path", "path")
 
     @field_validator("include", "exclude")
     @classmethod
@@ -190,15 +192,8 @@ class LabelSpec(_Strict):
         "name the pattern does not match): 'error' refuses the data set, 'drop' leaves the "
         "clip out (counted on the card)")
 
-    @field_validator("file")
-    @classmethod
-    def _plain(cls, v):
-        return _no_controls(v, "a path")
-
-    @field_validator("classes", "styles")
-    @classmethod
-    def _names(cls, v):
-        return _no_controls(v, "a name")
+    _plain = _refuse_controls("a path", "file")
+    _names = _refuse_controls("a name", "classes", "styles")
 
     @field_validator("pattern")
     @classmethod

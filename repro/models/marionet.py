@@ -51,8 +51,8 @@ from pydantic import model_validator
 from torch import nn
 
 from repro.data.action_items import ActionItems, GeneratedItems, pad_last
-from repro.errors import ConfigError, DataError
 from repro.models.base import Generator, GeneratorConfig, register
+from repro.models.baseline_io import check_items
 from repro.models.layers import TransformerDecoder, TransformerEncoder, sinusoidal_encoding
 from repro.motion.motion import Motion
 from repro.motion.rotations import matrix_to_6d, sixd_to_matrix
@@ -394,16 +394,7 @@ class MarioNet(Generator):
     def _check_items(self, items: ActionItems) -> None:
         if not isinstance(items, ActionItems):
             raise TypeError("MarioNet needs repro.data.action_items.ActionItems")
-        if items.skeleton != self.skeleton:
-            raise DataError(f"{self.method_id}: items use a different skeleton "
-                            f"({items.skeleton.fingerprint()[:12]} vs {self.skeleton.fingerprint()[:12]})")
-        if items.n_classes != self.n_classes:
-            raise ConfigError(f"{self.method_id}: items have {items.n_classes} classes, the model "
-                              f"{self.n_classes}")
-        if abs(items.fps - self.fps) > 1e-6:
-            raise DataError(f"{self.method_id}: items are at {items.fps} fps, the model at {self.fps}")
-        if len(items) == 0:
-            raise DataError(f"{self.method_id}: no items")
+        check_items(self, items)
 
     def _tensors(self, items: ActionItems, with_targets: bool) -> dict[str, torch.Tensor]:
         out = {"init": pack_poses(items.initial).float(), "labels": items.labels,

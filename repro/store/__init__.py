@@ -8,7 +8,7 @@ use one of them small; see ``repro.engine.source_hash``).
 
 from __future__ import annotations
 
-import importlib
+from repro.lazy_exports import lazy_getattr
 
 _EXPORTS = {
     "Store": "objects", "StoredObject": "objects", "ObjectInfo": "objects",
@@ -19,9 +19,4 @@ _EXPORTS = {
     "INTERRUPTED": "run_files", "RunIndex": "index",
 }
 __all__ = sorted(_EXPORTS)
-
-
-def __getattr__(name: str):
-    if name in _EXPORTS:
-        return getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_getattr(__name__, _EXPORTS)

@@ -65,12 +65,8 @@ from repro.data.item_sources import cached
 from repro.errors import ConfigError, DataError
 from repro.eval.memorisation import HARNESS_METRICS
 from repro.eval.protocols import register
-from repro.eval.protocols.marionette_common import (
-    MarionetteParams,
-    MarionetteProtocol,
-    read_samples,
-    write_samples,
-)
+from repro.eval.protocols.marionette_common import MarionetteParams, MarionetteProtocol
+from repro.eval.protocols.marionette_common import read_samples, write_samples
 from repro.eval.protocols.marionette_common import evaluation_clips  # noqa: F401 (re-exported)
 from repro.keys import content_key
 from repro.seeding import derive_seed, numpy_rng
