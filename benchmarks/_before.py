@@ -6,8 +6,9 @@ from git history: :func:`tree_at` unpacks ``git archive <commit> repro`` into a 
 folder (once per process and commit; removed at exit), which a child process can put first on
 its ``PYTHONPATH`` (``benchmarks/bench_prepare.py`` prepares with it), and
 :func:`import_before` imports one module file of that tree in this process under a distinct
-name, beside today's ``repro`` (``sys.modules["repro..."]`` is never touched), so that old
-functions can be called, or swapped in for today's with :func:`swapped`.
+name, beside today's ``repro`` (``sys.modules["repro..."]`` is never replaced; a module the old
+code imports that has moved since is answered by a stand-in only while it is imported), so that
+old functions can be called, or swapped in for today's with :func:`swapped`.
 
 An old module imported this way runs its top-level code against today's ``repro``: its absolute
 ``repro.*`` imports resolve to today's modules (helpers it shares with today's code are today's;
@@ -99,11 +100,34 @@ def load_module(path: Path, name: str):
     return mod
 
 
-def import_before(commit: str, relpath: str):
+def moved_modules() -> dict:
+    """{old module name: a stand-in module} for the library modules that have moved since the
+    commits the benchmarks compare with, offering today's objects under the old names: issue
+    30 moved ``repro.models.items`` (the item containers to :mod:`repro.data.action_items`,
+    ``local_joints`` into :mod:`repro.models.marionet`; the same functions)."""
+    import types
+
+    from repro.data import action_items, contexts
+    from repro.models.marionet import local_joints
+
+    items = types.ModuleType("repro.models.items")
+    for mod, names in ((action_items, ("ActionItems", "GeneratedItems", "ItemsConfig",
+                                       "ITEMS_VERSION", "pad_last", "condition_items")),
+                       (contexts, ("build_items", "items_from_windows", "in_place_classes",
+                                   "next_tags"))):
+        for n in names:
+            setattr(items, n, getattr(mod, n))
+    items.local_joints = local_joints
+    return {"repro.models.items": items}
+
+
+def import_before(commit: str, relpath: str, *, stand_ins=None):
     """The module file ``relpath`` (e.g. ``"repro/train/loop.py"``) as it was at ``commit``,
     imported under a name of its own (``_before_<hash>_repro_train_loop``) beside today's
     modules; today's generator and protocol registries are left as they were (module
-    docstring)."""
+    docstring).  ``stand_ins`` ({module name: module}; default :func:`moved_modules`) answer
+    the old module's imports of modules that no longer exist under that name; they are in
+    ``sys.modules`` only while it is imported, and never replace a module that exists."""
     sha = resolve(commit)
     root = tree_at(commit)
     path = root / relpath
@@ -111,9 +135,15 @@ def import_before(commit: str, relpath: str):
         raise BeforeUnavailable(f"{relpath} does not exist at commit {sha[:12]}")
     name = f"_before_{sha[:12]}_" + relpath.removesuffix(".py").replace("/", "_")
     saved = {m: dict(importlib.import_module(m)._REGISTRY) for m in _REGISTRIES}
+    stand_ins = moved_modules() if stand_ins is None else dict(stand_ins)
+    added = [m for m in stand_ins if m not in sys.modules]
     try:
+        for m in added:
+            sys.modules[m] = stand_ins[m]
         return load_module(path, name)
     finally:
+        for m in added:
+            sys.modules.pop(m, None)
         for m, reg in saved.items():
             sys.modules[m]._REGISTRY.clear()
             sys.modules[m]._REGISTRY.update(reg)

@@ -151,7 +151,8 @@ def main(argv=None) -> int:
         print(f"bench_kv_cache: no 'before' sampler: {e}", file=sys.stderr)
         return 2
     from repro.data.registry import load_clipset
-    from repro.models.items import build_items, condition_items
+    from repro.data.action_items import condition_items
+    from repro.data.contexts import build_items
     from repro.models.marionet import MarioNet
 
     torch.set_num_threads(max(1, args.threads))

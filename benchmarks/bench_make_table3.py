@@ -15,27 +15,17 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-from bench_table_runs import newest_values  # benchmarks/ is the script's own folder
-
-ROOT = Path(__file__).resolve().parents[1]
+from bench_table_runs import run_for_values  # benchmarks/ is the script's own folder
 
 
 def make_table3(home: Path, jobs: int) -> tuple[float, dict]:
-    env = {**os.environ, "REPRO_HOME": str(home)}
     cmd = ["make", "-s", "table3", f"JOBS={jobs}", f"REPRO={sys.executable} -m cli.main",
            "RUNFLAGS=--quiet"]
-    t0 = time.perf_counter()
-    out = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True)
-    seconds = time.perf_counter() - t0
-    if out.returncode != 0:
-        sys.exit(f"bench_make_table3: {' '.join(cmd)} exited {out.returncode}:\n{out.stderr}")
-    return seconds, newest_values(home)
+    return run_for_values(cmd, home, f"bench_make_table3: {' '.join(cmd)}")
 
 
 def main(argv=None) -> int:

@@ -49,14 +49,20 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def run(table: str, scale: str, jobs: int, home: Path) -> tuple[float, dict]:
     """Wall seconds of one ``repro run`` and its replicate values {(row, column, replicate): v}."""
-    env = {**os.environ, "REPRO_HOME": str(home)}
     cmd = [sys.executable, "-m", "cli.main", "run", table, "--scale", scale, "--quiet",
            "--jobs", str(jobs)]
+    return run_for_values(cmd, home, f"bench_table_runs: {' '.join(cmd[2:])}")
+
+
+def run_for_values(cmd: list[str], home: Path, shown: str) -> tuple[float, dict]:
+    """Wall seconds of ``cmd`` run at the repository root with ``REPRO_HOME=home``, and the
+    newest run's replicate values (:func:`newest_values`); a failure exits, naming ``shown``."""
+    env = {**os.environ, "REPRO_HOME": str(home)}
     t0 = time.perf_counter()
     out = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True)
     seconds = time.perf_counter() - t0
     if out.returncode != 0:
-        sys.exit(f"bench_table_runs: {' '.join(cmd[2:])} exited {out.returncode}:\n{out.stderr}")
+        sys.exit(f"{shown} exited {out.returncode}:\n{out.stderr}")
     return seconds, newest_values(home)
 
 

@@ -84,8 +84,11 @@ MAX_QUOTE_CHARS = 200
 #: ... and a whole message longer than this (many long words) too
 MAX_ERROR_CHARS = 2000
 _LONG_WORD = re.compile(r"\S{%d,}" % (MAX_QUOTE_CHARS + 1))
-#: a quoted value ('...' or "...", spaces allowed) longer than the cap
-_LONG_QUOTE = re.compile(r"'[^'\n]{%d,}'|\"[^\"\n]{%d,}\"" % ((MAX_QUOTE_CHARS - 1,) * 2))
+#: a quoted value ('...' or "...", spaces allowed) longer than the cap; a single quote right
+#: after a letter or digit is an apostrophe or a closing quote ("the reference x.bvh's",
+#: "joint 'Knee' by 0.04 cm in a.bvh, b.bvh, ...": the files are no quoted value), never an
+#: opening one
+_LONG_QUOTE = re.compile(r"(?<!\w)'[^'\n]{%d,}'|\"[^\"\n]{%d,}\"" % ((MAX_QUOTE_CHARS - 1,) * 2))
 
 
 #: what the terminal never gets raw (module docstring): C0 but newline, tab and a CR that ends
@@ -224,7 +227,7 @@ def _dataset_specs(args) -> None:
     data set, not a path on this machine."""
     text = getattr(args, "dataset", None)
     if isinstance(text, str) and text.endswith(".toml"):
-        from repro.data.dataset_spec import is_spec_path, register_spec_path
+        from repro.data.dataset_registration import is_spec_path, register_spec_path
         from repro.errors import ConfigError
 
         if not is_spec_path(text):

@@ -24,8 +24,9 @@ import tarfile
 
 from hypothesis import strategies as st
 
-#: a tiny valid clip: hips with two legs and a head (the heading and posture checks pass)
-BVH = b"""HIERARCHY
+#: the start of a BVH hierarchy: root Hips with two legs (the joints the heading check finds by
+#: name); the rest of the hierarchy and the MOTION block follow
+HIPS_AND_LEGS = """HIERARCHY
 ROOT Hips
 {
   OFFSET 0 0 0
@@ -48,7 +49,9 @@ ROOT Hips
       OFFSET 0 -40 0
     }
   }
-  JOINT Head
+"""
+#: a tiny valid clip: hips with two legs and a head (the heading and posture checks pass)
+BVH = (HIPS_AND_LEGS + """  JOINT Head
   {
     OFFSET 0 50 0
     CHANNELS 3 Zrotation Xrotation Yrotation
@@ -64,7 +67,7 @@ Frame Time: 0.0333333
 0 90 0 0 0 0 0 0 0 0 0 0 0 0 0
 0 90 1 0 0 0 0 0 0 0 0 0 0 0 0
 0 90 2 0 0 0 0 0 0 0 0 0 0 0 0
-"""
+""").encode()
 
 CLIPS = ("walk_01", "walk_02", "run_01", "run_02")
 #: labels patterns: ordinary, loose, and ones the shape check must refuse

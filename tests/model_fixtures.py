@@ -11,8 +11,8 @@ import pytest
 import torch
 
 from repro.data.clipset import TEST, TRAIN
-from repro.models.items import build_items
 from test_items import synthetic_clipset
+from repro.data.contexts import build_items
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -45,3 +45,24 @@ def items(clips):
 @pytest.fixture(scope="module")
 def test_items(clips):
     return build_items(clips, TEST)
+
+
+def assert_resume_is_exact(full, make, items, ckpt_dir, seed: int) -> None:
+    """A training of ``make()`` on ``items`` with ``seed`` killed after its first epoch (by
+    ``on_epoch``, which runs before that epoch's checkpoint) and resumed from ``ckpt_dir`` ends
+    with the weights of ``full`` (the same training, never interrupted)."""
+
+    class Stop(Exception):
+        pass
+
+    def stop(epoch, rec):
+        if epoch == 1:
+            raise Stop
+
+    with pytest.raises(Stop):
+        make().fit(items, seed=seed, ckpt_dir=ckpt_dir, on_epoch=stop)
+    resumed = make()
+    r = resumed.fit(items, seed=seed, ckpt_dir=ckpt_dir)
+    assert r.resumed_from == 1
+    for (k, v), v2 in zip(full.network.state_dict().items(), resumed.network.state_dict().values()):
+        assert torch.equal(v, v2), k

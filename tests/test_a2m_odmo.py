@@ -25,13 +25,8 @@ TINY = {"dim_z": 8, "hidden": 32, "batch_size": 32, "epochs": 2, "lr": 3e-3,
 
 
 @pytest.fixture(scope="module")
-def clips(mini_clips):
-    return mini_clips
-
-
-@pytest.fixture(scope="module")
-def windows(clips):
-    return WindowSource(window=20).train_items(clips)
+def windows(mini_clips):
+    return WindowSource(window=20).train_items(mini_clips)
 
 
 @pytest.fixture(scope="module")

@@ -11,15 +11,17 @@ import pytest
 import torch
 
 from repro.data.clipset import TEST, TRAIN
+from repro.data.contexts import build_items
 from repro.errors import ConfigError
 from repro.models.a2m import A2M, A2MConfig, kl_gaussians
+from repro.models.macvae_nets import kl_gaussians as macvae_kl_gaussians
 from repro.models.actor import ACTOR, ACTORConfig
 from repro.models.base import Generator, generator_class
 from repro.models.baseline_io import pack_poses, pose_joints
-from repro.models.items import build_items
 from repro.models.mann import MANN, MANNConfig, ExpertLinear, sgdr_factor
 from repro.motion.rotations import sixd_to_matrix
 from model_fixtures import clips, items, one_torch_thread, test_items  # noqa: F401 (fixtures)
+from model_fixtures import assert_resume_is_exact
 
 TINY = {
     "mann": dict(n_experts=3, hidden=24, gating_hidden=8, batch_size=32, epochs=3, lr=3e-3,
@@ -153,12 +155,13 @@ def test_sgdr_schedule():
     assert sgdr_factor(9, 99, 100, 10, 2) == pytest.approx(cap)       # phase capped at 0.9
 
 
-def test_a2m_kl_matches_torch():
+@pytest.mark.parametrize("kl", [kl_gaussians, macvae_kl_gaussians], ids=["a2m", "macvae"])
+def test_gaussian_kl_matches_torch(kl):
     mu1, lv1, mu2, lv2 = (torch.randn(4, 6) for _ in range(4))
     ref = torch.distributions.kl_divergence(
         torch.distributions.Normal(mu1, (0.5 * lv1).exp()),
         torch.distributions.Normal(mu2, (0.5 * lv2).exp())).sum(-1)
-    assert torch.allclose(kl_gaussians(mu1, lv1, mu2, lv2), ref, atol=1e-5)
+    assert torch.allclose(kl(mu1, lv1, mu2, lv2), ref, atol=1e-5)
 
 
 def test_mann_training_pairs(clips, items):
@@ -290,22 +293,7 @@ def test_mann_resume_is_exact(clips, items, tmp_path):
     resumes to the same bytes."""
     full = model("mann", clips)
     full.fit(items, seed=1)
-
-    class Stop(Exception):
-        pass
-
-    def stop(epoch, rec):
-        if epoch == 1:
-            raise Stop
-
-    part = model("mann", clips)
-    with pytest.raises(Stop):
-        part.fit(items, seed=1, ckpt_dir=tmp_path, on_epoch=stop)
-    resumed = model("mann", clips)
-    r = resumed.fit(items, seed=1, ckpt_dir=tmp_path)
-    assert r.resumed_from == 1
-    for (k, v), v2 in zip(full.network.state_dict().items(), resumed.network.state_dict().values()):
-        assert torch.equal(v, v2), k
+    assert_resume_is_exact(full, lambda: model("mann", clips), items, tmp_path, seed=1)
 
 
 # -- quick scale on the bundled stand-in (slow) ------------------------------------------------

@@ -265,14 +265,20 @@ def test_unknown_channel_name(tmp_path):
     assert e.line == _line_of(text, "Wrotation")
 
 
-def test_zero_frames_and_bad_header(tmp_path):
+@pytest.mark.parametrize("old, new, problem, line_of", [
+    ("Frames: 3", "Frames: 0", "at least one frame", "Frames:"),
+    ("Frames: 3", "Frames: three", "not an integer", None),
+    ("Frame Time: 0.0333333", "Frame Time: -1", "positive", "Frame Time:"),
+], ids=["zero-frames", "frames-not-a-number", "negative-frame-time"])
+def test_bad_header(tmp_path, old, new, problem, line_of):
     text = mixed_text()
-    e = bad(text.replace("Frames: 3", "Frames: 0"), tmp_path)
-    assert "at least one frame" in e.problem and e.line == _line_of(text, "Frames:")
-    e = bad(text.replace("Frames: 3", "Frames: three"), tmp_path)
-    assert "not an integer" in e.problem
-    e = bad(text.replace("Frame Time: 0.0333333", "Frame Time: -1"), tmp_path)
-    assert "positive" in e.problem and e.line == _line_of(text, "Frame Time:")
+    e = bad(text.replace(old, new), tmp_path)
+    assert problem in e.problem
+    assert line_of is None or e.line == _line_of(text, line_of)
+
+
+def test_no_motion_block(tmp_path):
+    text = mixed_text()
     e = bad(text.split("MOTION")[0], tmp_path)
     assert "no MOTION block" in e.problem and e.line == _line_of(text, "MOTION")
 

@@ -104,6 +104,19 @@ def test_body_frame_overrides_and_errors():
     assert np.allclose(bf.forward, [0, 0, 1]) and bf.pelvis == 0
     with pytest.raises(ValueError, match="no joint"):
         body_frame(sk, left_hip="zz", right_hip="b", up_joint="c")
+    # hips found by name that start at one point (CMU's lhipjoint / rhipjoint) are named
+    cmu = Skeleton(("root", "lhipjoint", "lfemur", "rhipjoint", "rfemur", "head"),
+                   (-1, 0, 1, 0, 3, 0), np.array([[0, 0, 0], [0, 0, 0], [0.1, -0.1, 0],
+                                                  [0, 0, 0], [-0.1, -0.1, 0], [0, 0.5, 0]]))
+    with pytest.raises(ValueError, match="the hips found, 'lhipjoint' and 'rhipjoint', are at "
+                                         "one point"):
+        body_frame(cmu)
+    assert body_frame(cmu, left_hip="lfemur", right_hip="rfemur").joints[:2] == ("lfemur",
+                                                                                   "rfemur")
+    upright = Skeleton(("root", "a", "b", "c"), (-1, 0, 0, 0),
+                       np.array([[0, 0, 0], [0, 0.1, 0], [0, -0.1, 0], [0, 0.3, 0]]))
+    with pytest.raises(ValueError, match=r"the hip line \('a' to 'b'\) is parallel"):
+        body_frame(upright, left_hip="a", right_hip="b", up_joint="c")
 
 
 @pytest.mark.parametrize("make", SKELETONS)

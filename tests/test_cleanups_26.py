@@ -15,10 +15,11 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from repro.config_errors import config_error, first_problem, resolve_config
+from repro.data.action_items import GeneratedItems, ItemsConfig
 from repro.errors import ConfigError, DataError
 from repro.eval.protocols import get_protocol
 from repro.eval.protocols.marionette_common import (
-    ItemSourceParams,
+    ActionItemParams,
     MarionetteParams,
     MarionetteProtocol,
     read_samples,
@@ -30,7 +31,6 @@ from repro.eval.protocols.single_action import (
     SingleActionParams,
     SingleActionSamples,
 )
-from repro.models.items import GeneratedItems, ItemsConfig
 from repro.motion.motion import Motion
 from repro.motion.skeleton import Skeleton
 
@@ -120,7 +120,7 @@ SHARED = ("initial_frames", "fps", "test_fraction", "test_cap_per_class", "split
 
 def test_both_protocols_take_the_shared_fields_from_one_base():
     assert set(SHARED) == set(MarionetteParams.model_fields)
-    assert set(ItemSourceParams.model_fields) < set(MarionetteParams.model_fields)
+    assert set(ActionItemParams.model_fields) < set(MarionetteParams.model_fields)
     for cls in (SingleActionParams, MultiActionParams):
         assert issubclass(cls, MarionetteParams)
         own = set(vars(cls).get("__annotations__", {}))

@@ -81,6 +81,13 @@ def test_error_messages_are_shortened_in_the_middle():
     words = " ".join(["w" * 150] * 100)  # many words under the quote cap: the whole is capped
     got = _one_line(f"file x.bvh: {words}")
     assert len(got) < MAX_ERROR_CHARS + 50 and got.startswith("file x.bvh: ")
+    quoted = "'" + "q " * 150 + "'"  # a quoted value over the cap, spaces and all: clipped
+    assert "characters left out" in _one_line(f"bad value {quoted} in x.toml")
+    # an apostrophe and a closing quote are no opening quote: the files between them stay
+    files = ", ".join(f"take_{k:03d}.bvh" for k in range(20))
+    msg = (f"OFFSETs differ from the reference take_000.bvh's: joint 'Knee' by 0.04 cm in "
+           f"{files}; raise offset_tolerance: every clip is posed on the reference's bones")
+    assert len(files) > MAX_QUOTE_CHARS and _one_line(msg) == msg
 
 
 def test_a_deeply_nested_spec_is_one_clear_error(tmp_path):

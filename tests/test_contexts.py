@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from repro.data.clipset import TEST, TRAIN
-from repro.data.contexts import ItemSource
+from repro.data.contexts import ActionSource
 from repro.data.sequences import ROLE_ACTION
 
 
@@ -21,7 +21,7 @@ def setup():
 
     torch.set_num_threads(1)
     clips = load_clipset("bandai2-mini")
-    src = ItemSource()
+    src = ActionSource()
     seqs = src.sequences(clips)
     return {"clips": clips, "src": src, "seqs": seqs,
             "train": src.items(clips, TRAIN), "test": src.items(clips, TEST)}
@@ -104,8 +104,8 @@ def test_context_joins_the_action_continuously(setup):
 
 def test_same_clip_context_is_a_named_option(setup):
     clips = setup["clips"]
-    leak = ItemSource(context="same_clip")
-    assert leak.key() != ItemSource().key()
+    leak = ActionSource(context="same_clip")
+    assert leak.key() != ActionSource().key()
     items = leak.items(clips, TEST)
     assert items.segment_index is None
-    assert "compose" not in leak.describe() and "compose" in ItemSource().describe()
+    assert "compose" not in leak.describe() and "compose" in ActionSource().describe()

@@ -302,7 +302,7 @@ def test_one_clip_per_action_and_style_cell_splits_by_whole_styles(tmp_path, fre
     ``by = "style"`` sends whole styles to test: every action on both sides, 51 test clips
     (3 styles), no style on both sides."""
     from repro.data.dataset_prepare import prepare_dataset
-    from repro.data.dataset_spec import register_spec_path
+    from repro.data.dataset_registration import register_spec_path
     from repro.data.registry import load_clipset
     from repro.errors import DataError
 
@@ -350,7 +350,7 @@ def test_subject_split_stratified_by_action_on_request(tmp_path, fresh_registry,
     without a test clip: refused, with the fix ``stratify = "action"``); with it, every
     action is on both sides and no subject is on both."""
     from repro.data.dataset_prepare import prepare_dataset
-    from repro.data.dataset_spec import register_spec_path
+    from repro.data.dataset_registration import register_spec_path
     from repro.data.registry import load_clipset
     from repro.errors import DataError
 

@@ -22,7 +22,7 @@ from test_dataset_spec_options import fresh_registry  # noqa: F401 (fixture)
 
 
 def _clipset(spec):
-    from repro.data.dataset_spec import register_spec_path
+    from repro.data.dataset_registration import register_spec_path
     from repro.data.registry import load_clipset
 
     return load_clipset(register_spec_path(str(spec)))

@@ -122,7 +122,7 @@ def _cli(*args, env=None, check=True):
 
 def test_prepared_joints_are_the_written_motion_turned_y_up_in_metres(labtest, _repro_home):
     from repro.data.dataset_prepare import prepare_dataset
-    from repro.data.dataset_spec import register_spec_path
+    from repro.data.dataset_registration import register_spec_path
     from repro.data.registry import load_clipset
     from repro.motion.skeleton import Skeleton, forward_kinematics
 
@@ -179,7 +179,7 @@ def test_an_asf_amc_data_set_prepares_from_its_spec(tmp_path, monkeypatch, _repr
     from repro.data import registry
     from repro.data.asf_amc import parse_amc, parse_asf, to_skeleton_motion
     from repro.data.dataset_prepare import prepare_dataset
-    from repro.data.dataset_spec import register_spec_path
+    from repro.data.dataset_registration import register_spec_path
     from repro.motion.skeleton import forward_kinematics
     from test_asf_amc import make_motion, write_amc, write_asf
 
@@ -229,7 +229,7 @@ def test_the_stand_in_declared_by_a_spec_equals_the_built_in(bandai_archive, mon
     from repro.data import registry
     from repro.data.bandai import load_bandai2, prepare_bandai2
     from repro.data.dataset_prepare import prepare_dataset
-    from repro.data.dataset_spec import register_spec_path
+    from repro.data.dataset_registration import register_spec_path
 
     monkeypatch.setenv("REPRO_DATASETS", "")
     registry.reset()
@@ -258,7 +258,7 @@ def test_registration_staleness_and_label_files(labtest, _repro_home):
     prepared before the labels changed is not loaded; label files are checked, BOM and all."""
     from repro.data import registry
     from repro.data.dataset_prepare import prepare_dataset
-    from repro.data.dataset_spec import register_spec_path
+    from repro.data.dataset_registration import register_spec_path
     from repro.errors import DataError, MissingDataError
 
     (labtest.parent / "pyproject.toml").write_text("[project]\nname = 'x'\n")

@@ -84,7 +84,7 @@ by = "subject"
 def test_cmu_hips_named_in_the_spec_asf_in_an_archive_subject_split(tmp_path, fresh_registry,
                                                                     _repro_home):
     from repro.data.dataset_prepare import prepare_dataset
-    from repro.data.dataset_spec import register_spec_path
+    from repro.data.dataset_registration import register_spec_path
     from repro.data.registry import load_clipset
     from repro.errors import DataError
     from repro.motion.heading import body_frame
@@ -299,7 +299,7 @@ def test_the_key_follows_only_the_files_read(tmp_path, fresh_registry, _repro_ho
     """A folder's other files, the spec kept inside its source, its words and [expect] leave
     the fingerprint alone; the ASF (matched case-insensitively) and the clips do not."""
     from repro.data.dataset_prepare import prepare_dataset
-    from repro.data.dataset_spec import register_spec_path
+    from repro.data.dataset_registration import register_spec_path
     from repro.data.registry import get_entry
 
     src = _amc_folder(tmp_path)
@@ -380,7 +380,7 @@ def test_force_with_an_unknown_kind_is_refused(tmp_path):
 def test_a_damaged_declared_copy_names_its_own_prepare_command(tmp_path, fresh_registry,
                                                                _repro_home):
     from repro.data.dataset_prepare import prepare_dataset
-    from repro.data.dataset_spec import register_spec_path
+    from repro.data.dataset_registration import register_spec_path
     from repro.data.registry import load_clipset
     from repro.errors import DataError
 
@@ -401,7 +401,7 @@ def test_the_lab_example_is_the_bundled_motion_in_another_skeleton(tmp_path, fre
     import importlib.util
 
     from repro.data.dataset_prepare import prepare_dataset
-    from repro.data.dataset_spec import register_spec_path
+    from repro.data.dataset_registration import register_spec_path
     from repro.data.registry import load_clipset
 
     path = repo_root() / "docs" / "examples" / "lab_example.py"

@@ -443,7 +443,7 @@ def test_ssmct_and_the_composites_train_and_sample_on_the_networks_device(pair_c
     Interpolation, aligned or not) sample with their components' networks there."""
     from repro.data.clipset import TRAIN
     from repro.models.actor import ACTOR
-    from repro.models.items import build_items
+    from repro.data.contexts import build_items
     from repro.models.multiact_baselines import ActorSSMCT, Interpolation
     from repro.models.ssmct import SSMCT
 

@@ -15,8 +15,9 @@ from pathlib import Path
 
 import pytest
 
-from repro.engine.executor import COMPUTED, HIT, SKIPPED, UNCACHED, execute
+from repro.engine.executor import execute
 from repro.engine.job import Job, topo_order
+from repro.engine.job_run import COMPUTED, HIT, SKIPPED, UNCACHED
 from repro.engine.plan import plan
 from repro.engine.source_hash import clear_source_cache, source_hash, source_manifest
 from repro.paths import runs_root

@@ -8,6 +8,8 @@ import json
 
 import pytest
 
+from test_tables_engine import UNUSED_PROFILES
+
 SCALES = """
 schema = 1
 version = 1
@@ -24,15 +26,8 @@ batch_size = 64
 [quick.evaluator.real]
 per_class = 6
 replicates = 3
-[medium]
-description = "unused"
-replicates = 2
-bootstrap_resamples = 200
-[paper]
-description = "unused"
-replicates = 2
-bootstrap_resamples = 200
 """
+SCALES += UNUSED_PROFILES
 
 
 @pytest.fixture

@@ -5,6 +5,9 @@ variance, is "not reproduced", and only a paper-budget run with --retrain reads
 
 from __future__ import annotations
 
+import json
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -171,7 +174,7 @@ def test_qualified_verdicts_and_epoch_scaling():
 
 
 def test_every_render_format_prints_the_evidence():
-    from repro.engine.tables import make_view
+    from repro.engine.table_view import make_view
     from repro.report import render
 
     spec, plan = _plan("quick")
@@ -187,7 +190,7 @@ def test_every_render_format_prints_the_evidence():
 def test_uncertain_paper_cells_are_marked():
     """Regression (issue 11, item 6): NM Table 1's Real FID "1" is marked uncertain in the
     spec; every view shows that mark and says what it means."""
-    from repro.engine.tables import make_view
+    from repro.engine.table_view import make_view
     from repro.report import render
 
     spec, plan = _plan("quick")
@@ -204,7 +207,7 @@ def test_uncertain_paper_cells_are_marked():
 def test_a_record_without_evidence_says_so():
     """A summary recorded before verdicts carried their evidence is shown with a line saying
     the evidence was not recorded, never as a bare verdict."""
-    from repro.engine.tables import NO_EVIDENCE, make_view
+    from repro.engine.table_view import NO_EVIDENCE, make_view
     from repro.report import render
 
     spec, plan = _plan("quick")
@@ -216,3 +219,39 @@ def test_a_record_without_evidence_says_so():
     fid = next(c for c in view.claims if c.id == "fid_best")
     assert fid.verdict == "contradicted" and fid.evidence == NO_EVIDENCE
     assert "decided by: not recorded" in render(view, "md")
+
+
+def test_the_evaluator_is_said_to_be_trained_on_the_runs_data_set():
+    """A built-in stand-in is "the stand-in"; a data set a spec declares is named as own data
+    (issue 28: never called a stand-in)."""
+    from repro.engine.evidence import evaluator_text
+
+    ev = {"kind": "transformer", "seed": 0}
+    assert evaluator_text(ev).endswith("(trained by the harness on the stand-in)")
+    assert evaluator_text(ev, "bandai2-mini").endswith("on the stand-in)")
+    assert evaluator_text(ev, "lab-styles").endswith("on lab-styles (own data))")
+    assert evaluator_text(ev, "humanact12").endswith("on humanact12)")  # a paper's data set
+    assert evaluator_text(None, "lab-styles") is None
+
+
+def test_a_metric_that_could_not_be_measured_decides_no_claim(tmp_path):
+    """A NaN value (multimodality with one sample per class, repro.metrics.diversity) is no
+    value: the cell is absent from the summary and a claim on it is "not evaluated"."""
+    from repro.engine.steps import write_values
+
+    spec, plan = _plan("quick")
+    values = _table1_values(spec, marionet_fid=1.0)
+    for row in ("mann", "a2m", "marionet", "actor"):
+        values += [{**v, "column": "multimod", "metric": "multimod", "value": None}
+                   for v in _values(spec, {row: {"multimod": [0.0] * 5}})]
+    s = summarise(plan, values)
+    assert all("multimod" not in cols for cols in s["cells"].values())
+    c = _claim(s, "multimod_mann_best_of_three")
+    assert c["verdict"] == "not evaluated" and c["probability"] is None
+    assert "no reproduced values for row 'mann' in column 'multimod'" in c["reason"]
+
+    # the job's values file: a NaN is written as no value
+    ctx = SimpleNamespace(out=tmp_path)
+    write_values(ctx, {"multimod": float("nan"), "fid": 1.5})
+    got = json.loads(next(tmp_path.iterdir()).read_text())["values"]
+    assert got == {"multimod": None, "fid": 1.5}

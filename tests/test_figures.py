@@ -15,8 +15,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from repro.engine.table_view import make_view
 from repro.engine.tables import (Band, RowPlan, TablePlan, _claim, _values_by_cell,
-                                 collect_values, make_view, summarise)
+                                 collect_values, summarise)
 from repro.paths import repo_root
 from repro.report import FORMATS, render
 from repro.report.render import _num

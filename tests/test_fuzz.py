@@ -38,15 +38,13 @@ import json
 import math
 import os
 import shutil
-import sys
 import tempfile
 import time
-import traceback
-from collections import Counter
 from pathlib import Path
 
 import fuzz_dataset_strategies as fzd
 import fuzz_strategies as fz
+from fuzz_findings import FOREIGN, REFUSED, Findings, shown_text
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -55,7 +53,6 @@ from hypothesis import strategies as st
 from repro.data.bvh import MAX_DEPTH, Bvh, parse_bvh
 from repro.data.upstream.humanact12 import read_humanact12
 from repro.data.upstream.restricted_pickle import loads_restricted
-from repro.errors import ReproError
 from repro.specs.load import load_spec
 from repro.specs.scales import SCALE_NAMES, load_scales, resolve_scale
 from repro.specs.schema import TableSpec
@@ -83,65 +80,11 @@ _WORK = Path(tempfile.mkdtemp(prefix="repro-fuzz-"))
 atexit.register(shutil.rmtree, _WORK, ignore_errors=True)  # also when no test here ran
 SENTINEL = _WORK / "sentinel" / "fired"
 SENTINEL.parent.mkdir()
-_REFUSED = object()   # the call raised a ReproError
-_FOREIGN = object()   # the call raised something else (only returned in LOG mode)
-_COUNTS: Counter = Counter()
-_ACCEPTED: Counter = Counter()  # inputs read without an error
-_TIMES: dict[str, float] = {}
-_FOUND: dict[tuple, dict] = {}
-_REPO = str(Path(__file__).resolve().parents[1])
-
-
-def _shown(x) -> str:
-    r = repr(x)
-    return r if len(r) <= 4000 else r[:4000] + f"... ({len(r)} characters)"
-
-
-def _record(target: str, kind: str, where: str, message: str, tb: str, shown) -> None:
-    key = (target, kind, where)
-    text = _shown(shown)
-    f = _FOUND.get(key)
-    if f is None:
-        _FOUND[key] = {"target": target, "exception": kind, "where": where, "count": 1,
-                       "message": message[:300], "input": text, "traceback": tb}
-    else:
-        f["count"] += 1
-        if len(text) < len(f["input"]):
-            f.update(input=text, message=message[:300], traceback=tb)
-
-
-def call(target: str, fn, *args, shown, **kwargs):
-    """``fn(*args, **kwargs)``; :data:`_REFUSED` on a ReproError.  Any other exception fails the
-    test (or, with ``REPRO_FUZZ_LOG``, is recorded and :data:`_FOREIGN` returned)."""
-    _COUNTS[target] += 1
-    try:
-        out = fn(*args, **kwargs)
-        _ACCEPTED[target] += 1
-        return out
-    except ReproError:
-        return _REFUSED
-    except Exception as e:
-        if LOG is None:
-            raise
-        frames = traceback.extract_tb(e.__traceback__)
-        ours = [f for f in frames if f.filename.startswith(_REPO) and "/tests/" not in f.filename]
-        last = ours[-1] if ours else frames[-1]
-        where = f"{os.path.relpath(last.filename, _REPO)}:{last.lineno}"
-        if len(ours) > 1:  # the entry point too: resolve_scale -> keys.canonical_json
-            where = f"{os.path.relpath(ours[0].filename, _REPO)}:{ours[0].lineno} -> {where}"
-        inner = frames[-1]
-        if inner is not last:
-            where += f" -> {inner.filename.rsplit('/', 1)[-1]}:{inner.lineno}"
-        _record(target, type(e).__name__, where, str(e),
-                "".join(traceback.format_exception(e, limit=-12)), shown)
-        return _FOREIGN
-
-
-def fail(target: str, problem: str, shown) -> None:
-    """A broken property other than an exception: assertion, or a record in LOG mode."""
-    if LOG is None:
-        raise AssertionError(f"{problem}\ninput: {_shown(shown)}")
-    _record(target, "PropertyViolated", problem.split(":", 1)[0], problem, "", shown)
+_FINDINGS = Findings(LOG, chained_where=True)
+_REFUSED, _FOREIGN = REFUSED, FOREIGN
+_COUNTS, _ACCEPTED = _FINDINGS.counts, _FINDINGS.accepted
+_TIMES, _FOUND = _FINDINGS.times, _FINDINGS.found
+_shown, call, fail = shown_text, _FINDINGS.call, _FINDINGS.fail
 
 
 @contextlib.contextmanager
@@ -211,16 +154,7 @@ def _fuzz_summary():
     time.sleep(0.5)  # a subprocess.Popen that had been let through would have touched it by now
     check_sentinel("pickle", "(end of module: an asynchronous disallowed call)")
     shutil.rmtree(_WORK, ignore_errors=True)
-    if LOG is not None:
-        with open(LOG, "a", encoding="utf-8") as fh:
-            fh.write(json.dumps({
-                "summary": True, "examples_per_test": EXAMPLES, "inputs": dict(_COUNTS),
-                "inputs_total": sum(_COUNTS.values()), "accepted": dict(_ACCEPTED),
-                "test_seconds": _TIMES,
-                "seconds": round(time.perf_counter() - t0, 1),
-                "foreign": len(_FOUND), "python": sys.version.split()[0],
-            }) + "\n")
-            fh.writelines(json.dumps(f) + "\n" for f in _FOUND.values())
+    _FINDINGS.write_log({"summary": True, "examples_per_test": EXAMPLES}, t0)
 
 
 @pytest.fixture(autouse=True)

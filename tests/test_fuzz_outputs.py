@@ -33,11 +33,8 @@ import contextlib
 import json
 import os
 import shutil
-import sys
 import tempfile
 import time
-import traceback
-from collections import Counter
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -45,7 +42,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from repro.errors import ReproError
+from fuzz_findings import FOREIGN, REFUSED, Findings, shown_text
 
 DEFAULT_EXAMPLES = 50
 _ENV = os.environ.get("REPRO_FUZZ_EXAMPLES", "").strip()
@@ -59,58 +56,12 @@ FUZZ_REPORT = settings(FUZZ, max_examples=max(10, EXAMPLES // 5))
 
 _WORK = Path(tempfile.mkdtemp(prefix="repro-fuzz-out-"))
 atexit.register(shutil.rmtree, _WORK, ignore_errors=True)
-_REFUSED, _FOREIGN = object(), object()
-_COUNTS: Counter = Counter()
-_ACCEPTED: Counter = Counter()
-_FOUND: dict[tuple, dict] = {}
-_TIMES: dict[str, float] = {}
-_REPO = str(Path(__file__).resolve().parents[1])
+_FINDINGS = Findings(LOG, chained_where=False)
+_REFUSED, _FOREIGN = REFUSED, FOREIGN
+_COUNTS, _ACCEPTED = _FINDINGS.counts, _FINDINGS.accepted
+_FOUND, _TIMES = _FINDINGS.found, _FINDINGS.times
 _SEQ = iter(range(10 ** 9))
-
-
-def _shown(x) -> str:
-    r = repr(x)
-    return r if len(r) <= 4000 else r[:4000] + f"... ({len(r)} characters)"
-
-
-def _record(target, kind, where, message, tb, shown) -> None:
-    f = _FOUND.get((target, kind, where))
-    text = _shown(shown)
-    if f is None:
-        _FOUND[(target, kind, where)] = {"target": target, "exception": kind, "where": where,
-                                         "count": 1, "message": message[:300], "input": text,
-                                         "traceback": tb}
-    else:
-        f["count"] += 1
-        if len(text) < len(f["input"]):
-            f.update(input=text, message=message[:300], traceback=tb)
-
-
-def call(target: str, fn, *args, shown, **kwargs):
-    """``fn(...)``; :data:`_REFUSED` on a ReproError; any other exception fails the test (with
-    ``REPRO_FUZZ_LOG``: is recorded, :data:`_FOREIGN` returned)."""
-    _COUNTS[target] += 1
-    try:
-        out = fn(*args, **kwargs)
-        _ACCEPTED[target] += 1
-        return out
-    except ReproError:
-        return _REFUSED
-    except Exception as e:
-        if LOG is None:
-            raise
-        frames = traceback.extract_tb(e.__traceback__)
-        ours = [f for f in frames if f.filename.startswith(_REPO) and "/tests/" not in f.filename]
-        last = ours[-1] if ours else frames[-1]
-        _record(target, type(e).__name__, f"{os.path.relpath(last.filename, _REPO)}:{last.lineno}",
-                str(e), "".join(traceback.format_exception(e, limit=-12)), shown)
-        return _FOREIGN
-
-
-def fail(target: str, problem: str, shown) -> None:
-    if LOG is None:
-        raise AssertionError(f"{problem}\ninput: {_shown(shown)}")
-    _record(target, "PropertyViolated", problem.split(":", 1)[0], problem, "", shown)
+_shown, call, fail = shown_text, _FINDINGS.call, _FINDINGS.fail
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -118,15 +69,8 @@ def _fuzz_summary():
     t0 = time.perf_counter()
     yield
     shutil.rmtree(_WORK, ignore_errors=True)
-    if LOG is not None:
-        with open(LOG, "a", encoding="utf-8") as fh:
-            fh.write(json.dumps({
-                "summary": True, "module": "test_fuzz_outputs", "examples_per_test": EXAMPLES,
-                "inputs": dict(_COUNTS), "inputs_total": sum(_COUNTS.values()),
-                "accepted": dict(_ACCEPTED), "test_seconds": _TIMES,
-                "seconds": round(time.perf_counter() - t0, 1), "foreign": len(_FOUND),
-                "python": sys.version.split()[0]}) + "\n")
-            fh.writelines(json.dumps(f) + "\n" for f in _FOUND.values())
+    _FINDINGS.write_log({"summary": True, "module": "test_fuzz_outputs",
+                         "examples_per_test": EXAMPLES}, t0)
 
 
 @pytest.fixture(autouse=True)
@@ -496,8 +440,7 @@ def _tiny_report(tmp_path_factory, monkeypatch):
     is made from the run's summary: no plan built, no clips loaded); plots drawn by stubs
     that write through the same writers as the real ones."""
     from repro.paths import repo_root
-    from repro.render import plots
-    from repro.store.atomic import write_output
+    from test_hardening_outputs import _table1_run, stub_report_plots
     from test_tables_engine import TINY_SCALES, _reduced_table1
 
     root = tmp_path_factory.mktemp("tables")
@@ -505,16 +448,7 @@ def _tiny_report(tmp_path_factory, monkeypatch):
                     root / "marionette" / "table1.toml")
     (root / "scales.toml").write_text(TINY_SCALES)
     monkeypatch.setenv("REPRO_TABLES", str(root))
-
-    def plot(view, path, data_path=None, **kw):
-        write_output(path, b"\x89PNG\r\n\x1a\n stub")
-        if data_path is not None:
-            plots.write_data(data_path, [{"row": "r"}], ["row"], {"kind": "stub"})
-
-    for name in ("table_plot", "figure_plot", "learning_curve_plot"):
-        monkeypatch.setattr(plots, name, plot)
-    from test_hardening_outputs import _table1_run
-
+    stub_report_plots(monkeypatch)
     _table1_run()  # the page made from a run's summary: no plan built, no clips loaded
 
 

@@ -195,7 +195,8 @@ def test_sigterm_inside_ray_init_records_the_run_interrupted(tmp_path, monkeypat
     """Ray's init installs a SIGTERM handler that calls sys.exit: a SIGTERM while it connects
     used to end the run FAILED (SystemExit); it is the executor's interrupt now."""
     from repro.engine import ray_executor
-    from repro.engine.executor import CANCELLED, execute
+    from repro.engine.executor import execute
+    from repro.engine.job_run import CANCELLED
     from repro.engine.job import Job
     from repro.store.objects import Store
     from repro.store.runs import RunRecorder, load_run

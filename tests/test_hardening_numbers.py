@@ -21,47 +21,25 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fuzz_dataset_strategies import HIPS_AND_LEGS
 from repro.errors import DataError, SpecError
 from repro.paths import repo_root
 
 #: a five-joint skeleton whose hips and head the harness finds by name
-HEAD = """HIERARCHY
-ROOT Hips
-{
- OFFSET 0 0 0
- CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
- JOINT LeftUpLeg
- {
-  OFFSET 10 0 0
-  CHANNELS 3 Zrotation Xrotation Yrotation
-  End Site
+HEAD = HIPS_AND_LEGS + """  JOINT Spine
   {
-   OFFSET 0 -40 0
+    OFFSET 0 20 0
+    CHANNELS 3 Zrotation Xrotation Yrotation
+    JOINT Head
+    {
+      OFFSET 0 30 0
+      CHANNELS 3 Zrotation Xrotation Yrotation
+      End Site
+      {
+        OFFSET 0 10 0
+      }
+    }
   }
- }
- JOINT RightUpLeg
- {
-  OFFSET -10 0 0
-  CHANNELS 3 Zrotation Xrotation Yrotation
-  End Site
-  {
-   OFFSET 0 -40 0
-  }
- }
- JOINT Spine
- {
-  OFFSET 0 20 0
-  CHANNELS 3 Zrotation Xrotation Yrotation
-  JOINT Head
-  {
-   OFFSET 0 30 0
-   CHANNELS 3 Zrotation Xrotation Yrotation
-   End Site
-   {
-    OFFSET 0 10 0
-   }
-  }
- }
 %s}
 MOTION
 """
@@ -246,7 +224,8 @@ def test_limits_are_validated(tmp_path, value):
 
 def test_limits_stay_out_of_the_fingerprint(tmp_path):
     """Caps refuse data, they never change its bytes: a spec keeps its key with [limits]."""
-    from repro.data.dataset_spec import key_material, load_dataset_spec, spec_key
+    from repro.data.dataset_registration import spec_key
+    from repro.data.dataset_spec import key_material, load_dataset_spec
 
     plain = write_set(tmp_path / "a", 10)
     lifted = write_set(tmp_path / "b", 10, frames_toml="[limits]\nmax_clip_frames = 9000000\n"

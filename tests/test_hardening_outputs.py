@@ -66,8 +66,7 @@ def _snapshot(folder):
             for p in sorted(folder.rglob("*"))}
 
 
-@pytest.fixture
-def stub_plots(monkeypatch):
+def stub_report_plots(monkeypatch) -> None:
     """The report's plots drawn by stubs that write through the real file writers (what is
     tested is where files go, not matplotlib's drawing, which costs seconds a page)."""
     from repro.render import plots
@@ -80,6 +79,12 @@ def stub_plots(monkeypatch):
 
     for name in ("table_plot", "figure_plot", "learning_curve_plot"):
         monkeypatch.setattr(plots, name, plot)
+
+
+@pytest.fixture
+def stub_plots(monkeypatch):
+    """:func:`stub_report_plots` for one test."""
+    stub_report_plots(monkeypatch)
 
 
 def test_report_replaces_links_in_out_and_never_writes_through_them(tiny_tables, stub_plots,  # noqa: F811
@@ -299,11 +304,11 @@ def test_markdown_escapes_html_and_latex_escapes_every_special():
 # ------------------------------------------------------------------------ run readers (review)
 def _table1_run(summary=None, **config):
     """A FINISHED plain run of Marionette Table 1 at the quick scale (what `repro show` picks)."""
-    from repro.engine.runner import _scale, _spec
+    from repro.engine.runner import table_scale, table_spec
 
-    sc = _scale("quick", None)
+    sc = table_scale("quick", None)
     r = RunRecorder(table="marionette/table1", scale=sc.name,
-                    dataset=sc.dataset_for(_spec("marionette/table1")),
+                    dataset=sc.dataset_for(table_spec("marionette/table1")),
                     config={"budget": 1.0, "evaluator_seed": 0, "retrain": False, **config})
     with r:
         r.write_summary(summary if summary is not None else {"rows": {}, "footer": []})

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import pytest
 
-from repro.data import dataset_labels, dataset_spec, sources
+from repro.data import dataset_labels, dataset_registration, dataset_spec, sources
 from repro.data.dataset_prepare import SkippedFiles, prepare_dataset
 from repro.data.dataset_spec import DatasetSpec, load_dataset_spec
 from repro.errors import DataError, SpecError
@@ -443,23 +443,17 @@ def test_class_names_with_controls_are_refused(field, value):
 
 
 # ------------------------------------------------------------------ item 11: duplicates
-def test_a_json_labels_file_repeating_a_key_is_refused(tmp_path):
-    (tmp_path / "l.json").write_text('{"c0": "walk", "c1": "run", "c0": "run"}')
+@pytest.mark.parametrize("kind, text, match", [
+    ("json", '{"c0": "walk", "c1": "run", "c0": "run"}', "key 'c0' is given twice"),
+    ("json", '{"c0": {"action": "walk", "action": "run"}}', "key 'action' is given twice"),
+    ("csv", "clip,action,action\nc0,walk,run\n", "names column 'action' more than once"),
+], ids=["json-clip", "json-field", "csv-column"])
+def test_a_labels_file_repeating_a_key_or_column_is_refused(tmp_path, kind, text, match):
+    (tmp_path / f"l.{kind}").write_text(text)
     lab = DatasetSpec.model_validate({"schema": 1, "name": "x", "source": {"path": "t"},
-                                      "labels": {"from": "json", "file": "l.json"}}).labels
-    with pytest.raises(DataError, match="key 'c0' is given twice"):
-        dataset_labels._side_table(lab, tmp_path / "l.json")
-    (tmp_path / "l.json").write_text('{"c0": {"action": "walk", "action": "run"}}')
-    with pytest.raises(DataError, match="key 'action' is given twice"):
-        dataset_labels._side_table(lab, tmp_path / "l.json")
-
-
-def test_a_csv_header_repeating_a_column_is_refused(tmp_path):
-    (tmp_path / "l.csv").write_text("clip,action,action\nc0,walk,run\n")
-    lab = DatasetSpec.model_validate({"schema": 1, "name": "x", "source": {"path": "t"},
-                                      "labels": {"from": "csv", "file": "l.csv"}}).labels
-    with pytest.raises(DataError, match="names column 'action' more than once"):
-        dataset_labels._side_table(lab, tmp_path / "l.csv")
+                                      "labels": {"from": kind, "file": f"l.{kind}"}}).labels
+    with pytest.raises(DataError, match=match):
+        dataset_labels._side_table(lab, tmp_path / f"l.{kind}")
 
 
 def test_skipped_file_names_reach_the_card_escaped(tmp_path):
@@ -552,10 +546,10 @@ def test_the_spec_key_of_an_archive_source_holds_the_naming_rule(tmp_path, monke
     arc, folder = archive_for_fp(tmp_path / "a"), tmp_path / "f"
     write_takes(folder)
     fspec = write_spec(folder)
-    keys = {p: dataset_spec.spec_key(load_dataset_spec(p), p) for p in (arc, fspec)}
+    keys = {p: dataset_registration.spec_key(load_dataset_spec(p), p) for p in (arc, fspec)}
     monkeypatch.setattr(dataset_spec, "ARCHIVE_NAMING", {"archive_root_names": "older"})
-    assert dataset_spec.spec_key(load_dataset_spec(arc), arc) != keys[arc]
-    assert dataset_spec.spec_key(load_dataset_spec(fspec), fspec) == keys[fspec]
+    assert dataset_registration.spec_key(load_dataset_spec(arc), arc) != keys[arc]
+    assert dataset_registration.spec_key(load_dataset_spec(fspec), fspec) == keys[fspec]
 
 
 # ------------------------------------------------------------------ review: TOML files

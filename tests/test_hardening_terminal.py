@@ -16,21 +16,11 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
+from test_dataset_spec_options import fresh_registry  # noqa: F401 (fixture)
 
 #: a raw control character as the terminal would get it (newline and tab are layout)
 RAW = re.compile("[\x00-\x08\x0b-\x1f\x7f-\x9f\ud800-\udfff]")
 EVIL = "\x1b]0;PWNED\x07\x1b[2J"
-
-
-@pytest.fixture
-def fresh_registry(monkeypatch):
-    from repro.data import registry
-
-    monkeypatch.setenv("REPRO_DATASETS", "")
-    registry.reset()
-    yield
-    registry.reset()
 
 
 def _cli(capsys, *argv) -> tuple[int, str, str]:

@@ -1,4 +1,4 @@
-"""Single-action items (repro.models.items): cutting, Marionette normalisation and its exact
+"""Single-action items (repro.data.action_items): cutting, Marionette normalisation and its exact
 inverse, data-driven in-place classes and trajectories, motion-graph next tags, keys."""
 
 from __future__ import annotations
@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import torch
 
+from repro.data.action_items import ItemsConfig, condition_items
 from repro.data.clipset import TEST, TRAIN, ClipSet
+from repro.data.contexts import build_items, in_place_classes, next_tags
 from repro.errors import ConfigError
-from repro.models.items import (ItemsConfig, build_items, condition_items, in_place_classes,
-                                next_tags)
 from repro.motion.heading import body_heading
 from repro.motion.motion import Motion
 from repro.motion.rotations import axis_angle_to_matrix, matrix_to_quat, quat_to_matrix

@@ -19,11 +19,12 @@ from repro.models.base import Generator, generator_class
 from repro.models.baseline_io import pack_poses
 from repro.models.layers import TransformerDecoder, TransformerEncoder
 from repro.models.macvae import MACVAE, MACVAEConfig
-from repro.models.macvae_nets import DecoderBackbone, EncoderBackbone, FrameMLP, kl_gaussians
+from repro.models.macvae_nets import DecoderBackbone, EncoderBackbone, FrameMLP
 from repro.motion.canon import CanonParams, uncanonicalize
 from repro.motion.motion import Motion
 from repro.motion.rotations import axis_angle_to_matrix, sixd_to_matrix
 from repro.motion.skeleton import Skeleton
+from model_fixtures import assert_resume_is_exact
 from model_fixtures import one_torch_thread  # noqa: F401 (autouse fixture)
 from test_items import CLASSES, NAMES, OFFSETS, PARENTS
 
@@ -188,14 +189,6 @@ def test_registry_bad_configs_and_key(pairs):
 
 
 # -- pieces -------------------------------------------------------------------------------------
-
-
-def test_kl_matches_torch():
-    mu1, lv1, mu2, lv2 = (torch.randn(4, 6) for _ in range(4))
-    ref = torch.distributions.kl_divergence(
-        torch.distributions.Normal(mu1, (0.5 * lv1).exp()),
-        torch.distributions.Normal(mu2, (0.5 * lv2).exp())).sum(-1)
-    assert torch.allclose(kl_gaussians(mu1, lv1, mu2, lv2), ref, atol=1e-5)
 
 
 def test_postprocessor_equals_whole_sequence_convolution(pairs):
@@ -419,21 +412,7 @@ def test_fit_reduces_loss_and_is_deterministic(pairs, trained):
 
 def test_resume_is_exact(pairs, trained, tmp_path):
     full, _ = trained
-
-    class Stop(Exception):
-        pass
-
-    def stop(epoch, rec):          # on_epoch runs before that epoch's checkpoint
-        if epoch == 1:
-            raise Stop
-
-    with pytest.raises(Stop):
-        model(pairs).fit(pairs, seed=3, ckpt_dir=tmp_path, on_epoch=stop)
-    resumed = model(pairs)
-    r = resumed.fit(pairs, seed=3, ckpt_dir=tmp_path)
-    assert r.resumed_from == 1
-    for (k, v), v2 in zip(full.network.state_dict().items(), resumed.network.state_dict().values()):
-        assert torch.equal(v, v2), k
+    assert_resume_is_exact(full, lambda: model(pairs), pairs, tmp_path, seed=3)
 
 
 def test_validation_curve(pairs, test_pairs):

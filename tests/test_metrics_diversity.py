@@ -13,6 +13,19 @@ def test_identical_features_give_zero():
     assert multimodality(f, np.arange(50) % 5, 5, seed=3) == 0.0
 
 
+def test_one_sample_per_class_is_not_measured():
+    # own data with one test clip per class: no within-class pair exists, so the value is NaN
+    # (a table's "not measured"), never a 0 that a claim would be decided on
+    f = np.random.default_rng(1).normal(size=(4, 6))
+    assert np.isnan(multimodality(f, [0, 1, 2, 3], 4, seed=0))
+    # one singleton class among pairs is enough (its 0 would pull the mean down); an absent
+    # class (MultiAct's early break) is not a singleton
+    assert np.isnan(multimodality(f, [0, 0, 1, 2], 3, seed=0))
+    got = multimodality(f, [0, 0, 2, 2], 3, per_class=20_000, seed=0, early_break=True)
+    want = (np.linalg.norm(f[0] - f[1]) + np.linalg.norm(f[2] - f[3])) / 2 / 3
+    assert got == pytest.approx(want, rel=0.03)
+
+
 def test_seeded_and_deterministic():
     f = np.random.default_rng(0).normal(size=(100, 30))
     assert diversity(f, seed=1) == diversity(f, seed=1)

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import roma
 import torch
+from model_fixtures import assert_resume_is_exact
 from model_fixtures import one_torch_thread  # noqa: F401 (fixture)
 from test_items import synthetic_clipset
 from torch import nn
@@ -153,21 +154,7 @@ def test_fit_decreases_loss(trained, pairs):
 
 def test_resume_is_exact(clips, pairs, trained, tmp_path):
     full, _ = trained
-
-    class Stop(Exception):
-        pass
-
-    def stop(epoch, rec):
-        if epoch == 1:
-            raise Stop
-
-    with pytest.raises(Stop):
-        ssmct(clips).fit(pairs, seed=3, ckpt_dir=tmp_path, on_epoch=stop)
-    resumed = ssmct(clips)
-    r = resumed.fit(pairs, seed=3, ckpt_dir=tmp_path)
-    assert r.resumed_from == 1
-    for (k, v), v2 in zip(full.network.state_dict().items(), resumed.network.state_dict().values()):
-        assert torch.equal(v, v2), k
+    assert_resume_is_exact(full, lambda: ssmct(clips), pairs, tmp_path, seed=3)
 
 
 def test_validation_curve_leaves_weights_alone(clips, pairs):
@@ -303,7 +290,7 @@ def test_unaligned_action_ignores_prev(actor, pairs):
 
 
 def _cond(gen, pairs):
-    from repro.models.items import condition_items
+    from repro.data.action_items import condition_items
 
     prev, l_p = pairs.prev()
     return condition_items(last_frames(prev, l_p, 6), pairs.labels, pairs.labels, pairs.l_c,

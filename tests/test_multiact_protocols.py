@@ -11,8 +11,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import torch
+from model_fixtures import one_torch_thread  # noqa: F401 (autouse fixture)
 from test_items import synthetic_clipset
 
+from repro.data.action_items import ActionItems, GeneratedItems
 from repro.data.clipset import TEST, TRAIN
 from repro.data.pairs import GeneratedPairs, PairItems, gather_frames
 from repro.errors import ConfigError, DataError
@@ -26,19 +28,10 @@ from repro.eval.protocols.multiact_common import MultiActSamples, load_samples
 from repro.eval.protocols.multiact_conditions import anchor_frames, blind
 from repro.eval.protocols.multiact_conditioned import MultiActConditioned
 from repro.eval.protocols.transition import Transition
-from repro.models.items import ActionItems, GeneratedItems
 from repro.motion.motion import Motion
 from repro.seeding import numpy_rng, torch_generator
 
 L_P, L_T = 6, 4
-
-
-@pytest.fixture(autouse=True, scope="module")
-def one_torch_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
 
 
 # ---------------------------------------------------------------------------------------------

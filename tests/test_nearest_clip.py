@@ -68,7 +68,7 @@ def test_test_conditions_get_the_nearest_same_tag_training_action(data, fitted):
 
 
 def test_cut_or_padded_to_the_requested_duration(data, fitted):
-    from repro.models.items import condition_items
+    from repro.data.action_items import condition_items
 
     _, train, _ = data
     sub = train.subset([0, 1])

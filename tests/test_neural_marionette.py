@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import torch
 
+from repro.data.action_items import GeneratedItems
 from repro.errors import ConfigError, DataError
 from repro.models.base import Generator, generator_class
-from repro.models.items import GeneratedItems
 from repro.models.marionet import MarioNet, MarioNetConfig, pack_poses
 from repro.models.neural_marionette import (INFERENCE_FIELDS, NeuralMarionette,
                                             NeuralMarionetteConfig, RevisedItems)

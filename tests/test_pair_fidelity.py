@@ -10,7 +10,7 @@ import torch
 
 from repro.data.clipset import TEST, TRAIN
 from repro.data.pair_fidelity import linear_deviation_cm, pair_fidelity
-from repro.data.pairs import PairSource
+from repro.data.pairs_build import PairSource
 from repro.keys import content_key
 
 
@@ -48,7 +48,7 @@ def _yawed(seqs, seed: int):
         seqs, rotations=q.astype(np.float32), root=rot(seqs.root).astype(np.float32),
         joints=rot(seqs.joints).astype(np.float32),
         seg_yaw=np.asarray(seqs.seg_yaw) + yaw_seq[seqs.seg_seq],
-        fingerprint=content_key({"base": seqs.fingerprint, "test-yaw": seed}), _cache={})
+        fingerprint=content_key({"base": seqs.fingerprint, "test-yaw": seed}), memo={})
 
 
 def test_keys_values_and_determinism(seqs):

@@ -11,7 +11,8 @@ import pytest
 import torch
 
 from repro.data.clipset import TEST, TRAIN
-from repro.data.pairs import PairItems, PairSource
+from repro.data.pairs import PairItems
+from repro.data.pairs_build import PairSource
 from repro.data.sequences import ROLE_ACTION, ROLE_LEAD_IN
 from repro.errors import ConfigError, DataError
 from repro.motion.motion import Motion
@@ -39,11 +40,11 @@ def _arrays(p: PairItems):
 
 
 def test_same_bytes_twice(setup):
-    from repro.data import pairs_build
+    from repro.data.item_sources import clear_cache
 
     clips, src = setup["clips"], setup["src"]
     first = [src.train_items(clips), src.test_items(clips)]
-    pairs_build._CACHE.clear()
+    clear_cache()
     second = [PairSource().train_items(clips), PairSource().test_items(clips)]
     for a, b in zip(first, second):
         assert a is not b and a.key() == b.key() and a.source == b.source

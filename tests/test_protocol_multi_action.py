@@ -252,7 +252,7 @@ def test_ss_ar_runs_neural_marionette_with_the_evaluator_as_f_c(setup):
     assert torch.equal(out.motion.root[0::L][keep], base.motion.root[0::L][keep])
     # F_c = the scorer: action 1 is revised exactly where the scorer rejects the plain pass
     from repro.eval.protocols.multi_action import MultiAction
-    from repro.models.items import GeneratedItems
+    from repro.data.action_items import GeneratedItems
     from repro.seeding import derive_seed
 
     first = torch.arange(S) * L
@@ -299,7 +299,8 @@ def test_test_sets_reach_the_table_json(setup, monkeypatch):
     import json
 
     from repro.engine import table_facts
-    from repro.engine.tables import build_plan, make_view
+    from repro.engine.table_view import make_view
+    from repro.engine.tables import build_plan
     from repro.report import render
     from repro.specs.load import find_spec
     from repro.specs.scales import resolve_scale

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 import torch
 
+from repro.data.action_items import GeneratedItems
 from repro.data.clipset import TEST, TRAIN
 from repro.errors import ConfigError, DataError
 from repro.eval.protocols import get_protocol, is_implemented, protocol_class
 from repro.models.base import generator_class
-from repro.models.items import GeneratedItems
 from repro.paths import tables_root
 
 

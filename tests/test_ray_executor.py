@@ -12,8 +12,9 @@ import sys
 
 import pytest
 
-from repro.engine.executor import CANCELLED, COMPUTED, FAILED, HIT, ProgressHook, execute
+from repro.engine.executor import ProgressHook, execute
 from repro.engine.job import Job, topo_order
+from repro.engine.job_run import CANCELLED, COMPUTED, FAILED, HIT
 from repro.errors import ConfigError
 from repro.store.objects import Store
 from repro.store.runs import RunRecorder, load_run

@@ -103,6 +103,31 @@ def test_verify_notes_a_relaxed_gate_and_fails_only_when_the_standard_one_would_
     assert gate_check({**base, "gate": {"standard": False}}, failing)[1] is None
 
 
+def test_a_failure_the_margin_cannot_relax_says_no_gate():
+    """A FID over its bound (the walk-through's ASF/AMC set, split by subject) is not an
+    accuracy shortfall: the message names --no-gate, not a margin that would change nothing;
+    and the line of an enforced gate that failed says FAILED, not "not enforced"."""
+    from repro.eval.gate import (GateSetting, RealGateError, apply_gate, gate_line,
+                                 gate_summary, raise_if_failed)
+
+    check = apply_gate(_rows(acc=0.90, fid=3.9, top1=0.86), None, GateSetting())
+    assert check["reasons"] == ["real FID(train, test) 3.900 exceeds the bound 1.000"]
+    with pytest.raises(RealGateError) as e:
+        raise_if_failed(check)
+    msg = str(e.value)
+    assert "to score methods anyway pass --no-gate (or set [gate] enabled = false in the " \
+           "data-set spec; --gate-margin relaxes only the accuracy check)" in msg
+    assert "--gate-margin X or" not in msg and "class-balanced" not in msg
+    wide = GateSetting(margin=0.5, margin_from="command line (--gate-margin)")
+    with pytest.raises(RealGateError, match="FID"):  # the margin does not help
+        raise_if_failed(apply_gate(_rows(acc=0.90, fid=3.9, top1=0.86), None, wide))
+    both = apply_gate(_rows(acc=0.5, fid=3.9, top1=0.86), None, GateSetting())
+    with pytest.raises(RealGateError, match="pass --no-gate .*relaxes only the accuracy"):
+        raise_if_failed(both)
+    assert gate_line(gate_summary(GateSetting(), [check], 0.05)) == (
+        "Real-data gate: standard (on, margin 0.050, the scale profile's): FAILED.")
+
+
 def test_resolve_gate_command_line_over_spec_over_profile(tmp_path, monkeypatch):
     from repro.data import registry
     from repro.eval.gate import resolve_gate

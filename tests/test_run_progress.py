@@ -50,7 +50,8 @@ def test_ci_runs_tables_quietly():
 def test_line_hook_says_kind_row_replicate_and_skips_planned_hits():
     import io
 
-    from repro.engine.executor import COMPUTED, HIT, JobResult
+    from repro.engine.executor import JobResult
+    from repro.engine.job_run import COMPUTED, HIT
     from repro.engine.job import Job
     from repro.engine.progress import LineProgressHook, job_words
 

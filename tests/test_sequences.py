@@ -12,6 +12,7 @@ import torch
 from cli.main import main
 from repro.data.clipset import TEST, TRAIN
 from repro.data.compose_walk import features
+from repro.data.sequence_card import card_of
 from repro.data.sequence_views import SEQUENCE_VIEWS, load_view
 from repro.data.sequences import (CARD_SCHEMA, COMPOSE_VERSION, ROLE_ACTION, ROLE_LEAD_IN,
                                   ROLE_LEAD_OUT, ComposeConfig, compose_sequences, sequences_for)
@@ -282,7 +283,7 @@ def test_sequences_start_anywhere_in_the_world(seqs):
 
 def test_fidelity_meets_issue_26(seqs):
     """The card's fidelity numbers on the mini view (issue 26, "Done when")."""
-    f = seqs.card()["fidelity"]
+    f = card_of(seqs)["fidelity"]
     C = seqs.n_classes
     assert min(f["successors_per_tag"]) >= 6
     assert np.median(f["top4_share"]) >= 0.6
@@ -305,7 +306,7 @@ def test_fidelity_meets_issue_26(seqs):
 
 
 def test_card_is_json(seqs, mini):
-    card = json.loads(json.dumps(seqs.card()))
+    card = json.loads(json.dumps(card_of(seqs)))
     assert card["fingerprint"] == seqs.fingerprint and card["compose_version"] == COMPOSE_VERSION
     assert card["source"]["fingerprint"] == mini.fingerprint
     assert card["tag_pairs"]["label_names"] == list(mini.label_names)
@@ -351,7 +352,7 @@ def test_config_checks_and_edge_cases(mini):
 def test_view_matches_direct_composition(seqs):
     v = load_view("bandai2-seq-mini")
     assert v.name == "bandai2-seq-mini" and v.fingerprint == seqs.fingerprint
-    assert v.card()["name"] == "bandai2-seq-mini" and seqs.card()["name"] != v.name
+    assert card_of(v)["name"] == "bandai2-seq-mini" and card_of(seqs)["name"] != v.name
     assert SEQUENCE_VIEWS == {"bandai2-seq": "bandai2", "bandai2-seq-mini": "bandai2-mini"}
 
 

@@ -201,20 +201,43 @@ def test_unknown_key_is_an_error_with_suggestion(tables_copy):
     assert "missing required field 'label'" in text
 
 
-def test_reported_cell_for_unknown_column(tables_copy):
-    p = tables_copy / "marionette" / "table3.toml"
-    _edit(p, 'overall.fid = "12.785"', 'overall.fd = "12.785"')
-    (msg,) = _problems(p)
-    assert "rows[0] (id 'mann').reported" in msg
-    assert "unknown column 'overall.fd' (did you mean 'overall.fid'?)" in msg
+#: one edit of a spec (file, text, replacement) -> phrases of the one problem it makes
+ONE_EDIT_ONE_PROBLEM = {
+    "reported_cell_for_unknown_column": (
+        "marionette/table3.toml", 'overall.fid = "12.785"', 'overall.fd = "12.785"',
+        ["rows[0] (id 'mann').reported",
+         "unknown column 'overall.fd' (did you mean 'overall.fid'?)"]),
+    "unparseable_printed_value": (
+        "odmo/table3.toml", '"15.22%±.92"', '"15.22%+-.92"',
+        ["rows[2] (id 'odmo').reported.humanact12.mode_homogeneity.printed",
+         "cannot parse printed value"]),
+    "claim_fields_must_match_kind": (
+        "multiact/tableB.toml", 'kind = "order"', 'kind = "gap"',
+        ["a gap claim needs 'a', 'b' and 'delta'", "'better' is not used by a gap claim"]),
+    "transcription_slip_that_flips_a_claim_is_caught": (
+        "multiact/tableB.toml", 'fid_train = "2.00±0.122"', 'fid_train = "0.70±0.122"',
+        ["claims[0] (id 'transformer_best')", "fid_train", "holds_on_reported = false"]),
+    "closer_to_real_needs_a_reference": (
+        "multiact/table2.toml", 'reference = "real_test"\n', "",
+        ["columns[4] (id 'div')", "needs a reference row", "real_train, real_test"]),
+    "uncertain_cell_needs_a_note": (
+        "marionette/table5.toml",
+        'pose_gap = { printed = "0.265", certain = false, note = "printed 0.265; likely a typo '
+        'for 2.65 (see the table note)" }',
+        'pose_gap = { printed = "0.265", certain = false }', ["needs a note", "pose_gap"]),
+    "id_must_match_path": ("odmo/table4.toml", 'id = "odmo/table4"', 'id = "odmo/table5"',
+                           ["does not match its path", "odmo/table4"]),
+}
 
 
-def test_unparseable_printed_value(tables_copy):
-    p = tables_copy / "odmo" / "table3.toml"
-    _edit(p, '"15.22%±.92"', '"15.22%+-.92"')
+@pytest.mark.parametrize("case", list(ONE_EDIT_ONE_PROBLEM))
+def test_one_edit_makes_one_problem(tables_copy, case):
+    file, old, new, phrases = ONE_EDIT_ONE_PROBLEM[case]
+    p = tables_copy / file
+    _edit(p, old, new)
     (msg,) = _problems(p)
-    assert "rows[2] (id 'odmo').reported.humanact12.mode_homogeneity.printed" in msg
-    assert "cannot parse printed value" in msg
+    for phrase in phrases:
+        assert phrase in msg, (phrase, msg)
 
 
 def test_claim_naming_unknown_row_and_column(tables_copy):
@@ -224,45 +247,6 @@ def test_claim_naming_unknown_row_and_column(tables_copy):
     text = "\n".join(_problems(p))
     assert "claims[0] (id 'macvae_beats_actor_everywhere').than: unknown row 'actr' (did you mean 'actor'?)" in text
     assert "unknown column 'fid_trian' (did you mean 'fid_train'?)" in text
-
-
-def test_claim_fields_must_match_kind(tables_copy):
-    p = tables_copy / "multiact" / "tableB.toml"
-    _edit(p, 'kind = "order"', 'kind = "gap"')
-    (msg,) = _problems(p)
-    assert "a gap claim needs 'a', 'b' and 'delta'" in msg
-    assert "'better' is not used by a gap claim" in msg
-
-
-def test_transcription_slip_that_flips_a_claim_is_caught(tables_copy):
-    p = tables_copy / "multiact" / "tableB.toml"
-    _edit(p, 'fid_train = "2.00±0.122"', 'fid_train = "0.70±0.122"')
-    (msg,) = _problems(p)
-    assert "claims[0] (id 'transformer_best')" in msg and "fid_train" in msg
-    assert "holds_on_reported = false" in msg
-
-
-def test_closer_to_real_needs_a_reference(tables_copy):
-    p = tables_copy / "multiact" / "table2.toml"
-    _edit(p, 'reference = "real_test"\n', "", count=1)
-    (msg,) = _problems(p)
-    assert "columns[4] (id 'div')" in msg and "needs a reference row" in msg
-    assert "real_train, real_test" in msg
-
-
-def test_uncertain_cell_needs_a_note(tables_copy):
-    p = tables_copy / "marionette" / "table5.toml"
-    _edit(p, 'pose_gap = { printed = "0.265", certain = false, note = "printed 0.265; likely a typo for 2.65 (see the table note)" }',
-          'pose_gap = { printed = "0.265", certain = false }')
-    (msg,) = _problems(p)
-    assert "needs a note" in msg and "pose_gap" in msg
-
-
-def test_id_must_match_path(tables_copy):
-    p = tables_copy / "odmo" / "table4.toml"
-    _edit(p, 'id = "odmo/table4"', 'id = "odmo/table5"')
-    (msg,) = _problems(p)
-    assert "does not match its path" in msg and "odmo/table4" in msg
 
 
 def test_toml_syntax_error_names_the_line(tables_copy):

@@ -14,7 +14,8 @@ import pytest
 
 from repro.keys import content_key, sha256_file
 from repro.store.atomic import utc_now
-from repro.store.objects import MANIFEST, Store
+from repro.store.object_files import MANIFEST
+from repro.store.objects import Store
 
 
 def _key(i) -> str:

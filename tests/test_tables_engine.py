@@ -39,7 +39,9 @@ real = { per_class = 6, replicates = 2, max_fid = 1000.0, gate_margin = 1.0 }
 [quick.protocols.single_action]
 samples_per_class = 3
 max_frames = 40
-
+"""
+#: the profiles a test profile file must list but no test runs
+UNUSED_PROFILES = """
 [medium]
 description = "unused"
 replicates = 2
@@ -50,6 +52,7 @@ description = "unused"
 replicates = 2
 bootstrap_resamples = 200
 """
+TINY_SCALES += UNUSED_PROFILES
 
 
 def _reduced_table1(src: Path, dst: Path) -> None:

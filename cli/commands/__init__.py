@@ -5,6 +5,15 @@ well under half a second); heavy imports (torch, numpy, ...) go inside the handl
 """
 
 
+def command_group(subparsers, name: str, help: str, description: str, dest: str):
+    """The subparsers of a new command group ``name`` whose subcommand goes to ``args.<dest>``;
+    the group alone prints its help (exit 0)."""
+    p = subparsers.add_parser(name, help=help, description=description)
+    sub = p.add_subparsers(dest=dest, metavar="SUBCOMMAND")
+    p.set_defaults(func=lambda args: (p.print_help(), 0)[1])
+    return sub
+
+
 def int_at_least(minimum: int, rule: str | None = None):
     """An argparse ``type``: an integer >= ``minimum``; ``rule`` (with ``{v}``) words the refusal
     (default: "must be at least <minimum>, got <v>")."""

@@ -5,12 +5,13 @@ from __future__ import annotations
 import argparse
 import json
 
+from cli.commands import command_group
+
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("cache", help="inspect, verify and prune the artifact store",
-                              description="The content-addressed store under REPRO_HOME/store.")
-    sub = p.add_subparsers(dest="cache_command", metavar="SUBCOMMAND")
-    p.set_defaults(func=lambda args: (p.print_help(), 0)[1])
+    sub = command_group(subparsers, "cache", "inspect, verify and prune the artifact store",
+                        "The content-addressed store under REPRO_HOME/store.",
+                        "cache_command")
 
     ls = sub.add_parser("ls", help="list stored objects (kind, size, created)")
     ls.add_argument("--kind", help="only objects of this kind")
@@ -32,7 +33,8 @@ def register(subparsers) -> None:
 
 
 def _ls(args: argparse.Namespace) -> int:
-    from repro.store.objects import Store, describe_bytes
+    from repro.store.object_files import describe_bytes
+    from repro.store.objects import Store
 
     store = Store()
     infos = store.ls(kind=args.kind)
@@ -82,7 +84,7 @@ def _verify(args: argparse.Namespace) -> int:
 
 
 def _gc(args: argparse.Namespace) -> int:
-    from repro.store.objects import describe_bytes
+    from repro.store.object_files import describe_bytes
     from repro.store.runs import collect_garbage
 
     rep = collect_garbage(dry_run=args.dry_run, include_scratch=args.scratch)

@@ -6,12 +6,13 @@ import argparse
 import json
 import sys
 
+from cli.commands import command_group
+
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("data", help="prepare, describe and bundle data sets",
-                              description="Prepare, describe and bundle data sets.")
-    sub = p.add_subparsers(dest="data_command", metavar="SUBCOMMAND")
-    p.set_defaults(func=lambda args: (p.print_help(), 0)[1])
+    sub = command_group(subparsers, "data", "prepare, describe and bundle data sets",
+                        "Prepare, describe and bundle data sets.",
+                        "data_command")
 
     pp = sub.add_parser("prepare", help="parse a data set's source into the local cache")
     pp.add_argument("name", help="data set name (bandai2) or sequence view (bandai2-seq, "
@@ -95,7 +96,7 @@ def _prepare(args: argparse.Namespace) -> int:
 
     if args.name in SEQUENCE_VIEWS:
         return _prepare_view(args)
-    from repro.data.dataset_spec import is_spec_path, spec_file_of
+    from repro.data.dataset_registration import is_spec_path, spec_file_of
 
     spec_file = args.name if is_spec_path(args.name) else spec_file_of(args.name)
     if spec_file is not None:
@@ -124,7 +125,7 @@ def _prepare(args: argparse.Namespace) -> int:
 def _prepare_spec(args: argparse.Namespace, spec_file) -> int:
     """A data set declared by a spec file (repro.data.dataset_spec)."""
     from repro.data.dataset_prepare import prepare_dataset
-    from repro.data.dataset_spec import register_spec_path
+    from repro.data.dataset_registration import register_spec_path
     from repro.data.registry import clipset_summary, get_entry
     from repro.errors import ConfigError
 
@@ -152,6 +153,7 @@ def _print_declared_card(card: dict) -> None:
     """A declared data set's card beyond the counts: per-class durations, subjects, and what
     the source held that was not read."""
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     con = Console()
@@ -163,14 +165,14 @@ def _print_declared_card(card: dict) -> None:
     if card.get("subjects"):
         con.print(f"subjects: {card['subjects']}")
     for w in card.get("warnings", []):
-        con.print(f"[yellow]warning[/yellow]: {w}")
+        con.print(f"[yellow]warning[/yellow]: {escape(w)}")  # "[skeleton] ..." is no markup
     for key, what in (("skipped_files", "file(s) in the source matched no pattern"),
                       ("unused_label_rows", "label row(s) name no clip of the source"),
                       ("unlisted_clips", "clip(s) dropped: the labels do not name them")):
         d = card.get(key) or {}
         if d.get("count"):
             more = " …" if d["count"] > len(d["first"]) else ""
-            con.print(f"{d['count']} {what}: {', '.join(d['first'])}{more}")
+            con.print(f"{d['count']} {what}: {', '.join(d['first'])}{more}", markup=False)
     if card.get("excluded_files"):
         con.print(f"{card['excluded_files']} file(s) left out by [source] exclude",
                   markup=False)

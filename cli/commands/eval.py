@@ -6,16 +6,15 @@ from __future__ import annotations
 import json
 import sys
 
-from cli.commands import gate_options, int_at_least
+from cli.commands import command_group, gate_options, int_at_least
 
 KINDS = ("a2m_gru", "uestc_gru", "multiact_gru", "transformer")
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("eval", help="evaluation classifiers and the real-data rows",
-                              description="Train/load evaluation classifiers; compute the real rows.")
-    sub = p.add_subparsers(dest="eval_command", metavar="SUBCOMMAND")
-    p.set_defaults(func=lambda args: (p.print_help(), 0)[1])
+    sub = command_group(subparsers, "eval", "evaluation classifiers and the real-data rows",
+                        "Train/load evaluation classifiers; compute the real rows.",
+                        "eval_command")
 
     def common(sp):
         sp.add_argument("--dataset", required=True, help="data set (bandai2, bandai2-mini, ...)")

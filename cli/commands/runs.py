@@ -8,13 +8,14 @@ import json
 import math
 from typing import Any
 
+from cli.commands import command_group
+
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("runs", help="list, show and compare recorded runs",
-                              description="Run records under REPRO_HOME/runs, indexed in "
-                                          "REPRO_HOME/runs.sqlite.")
-    sub = p.add_subparsers(dest="runs_command", metavar="SUBCOMMAND")
-    p.set_defaults(func=lambda args: (p.print_help(), 0)[1])
+    sub = command_group(subparsers, "runs", "list, show and compare recorded runs",
+                        "Run records under REPRO_HOME/runs, indexed in "
+                        "REPRO_HOME/runs.sqlite.",
+                        "runs_command")
 
     ls = sub.add_parser("ls", help="list runs, newest first")
     ls.add_argument("--table", help="only runs of this table (e.g. marionette/table3)")

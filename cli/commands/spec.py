@@ -35,7 +35,7 @@ def register(subparsers) -> None:
 def _check(args) -> int:
     from repro.errors import SpecError
     from repro.paths import tables_root
-    from repro.specs.load import SpecValidationError, _display_path, load_spec, spec_paths
+    from repro.specs.load import SpecValidationError, display_path, load_spec, spec_paths
     from repro.specs.scales import load_scales, scales_path
 
     if args.files:
@@ -51,7 +51,7 @@ def _check(args) -> int:
     n_bad = 0
     seen_ids: dict[str, str] = {}
     for path in paths:
-        shown = _display_path(path)
+        shown = display_path(path)
         try:
             if path.name == "scales.toml":
                 sf = load_scales(path)

@@ -88,6 +88,16 @@ def _fast_kernels_option(p: argparse.ArgumentParser) -> None:
                    "pinned baselines; docs/engine.md)")
 
 
+def _computing_options(p: argparse.ArgumentParser, func) -> None:
+    """The tail of a computing command (``run``, ``sweep``): ``--quiet``, the gate options,
+    ``--fast-kernels``, then its handler ``func``."""
+    p.add_argument("--quiet", action="store_true", help="no progress: neither bars (stdout "
+                   "a terminal) nor progress lines on stderr (stdout redirected)")
+    gate_options(p)
+    _fast_kernels_option(p)
+    p.set_defaults(func=func)
+
+
 def _retrain_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--retrain", action="store_true",
                    help="train one model per replicate (training seed = replicate seed), so the "
@@ -131,11 +141,7 @@ def register(sub) -> None:
     _retrain_option(p)
     p.add_argument("--format", default="term", type=output_format,
                    help="term | md | latex | html | json | csv")
-    p.add_argument("--quiet", action="store_true", help="no progress: neither bars (stdout "
-                   "a terminal) nor progress lines on stderr (stdout redirected)")
-    gate_options(p)
-    _fast_kernels_option(p)
-    p.set_defaults(func=cmd_run)
+    _computing_options(p, cmd_run)
 
     p = sub.add_parser("sweep", help="rerun a table at several training budgets or with "
                        "several evaluator seeds; cells and verdicts against the axis",
@@ -154,11 +160,7 @@ def register(sub) -> None:
     _retrain_option(p)
     p.add_argument("--format", default="term", choices=("term", "md", "json"),
                    help="term | md | json (default term)")
-    p.add_argument("--quiet", action="store_true", help="no progress: neither bars (stdout "
-                   "a terminal) nor progress lines on stderr (stdout redirected)")
-    gate_options(p)
-    _fast_kernels_option(p)
-    p.set_defaults(func=cmd_sweep)
+    _computing_options(p, cmd_sweep)
 
     p = sub.add_parser("show", help="print a table from its newest run (no computing)")
     p.add_argument("table")
@@ -332,11 +334,11 @@ def cmd_show(args) -> int:
 
 @_on_device(computes=True)
 def cmd_rescore(args) -> int:
-    from repro.engine.runner import _scale, _spec, latest_run, run_table, table_view
+    from repro.engine.runner import latest_run, run_table, table_scale, table_spec, table_view
     from repro.errors import ConfigError
     from repro.report import render
 
-    spec, sc = _spec(args.table), _scale(args.scale, args.dataset)
+    spec, sc = table_spec(args.table), table_scale(args.scale, args.dataset)
     ds = args.dataset or sc.dataset_for(spec)
     if latest_run(spec.id, sc.name, ds) is None:  # nothing stored to re-measure: say so, train nothing
         from repro.engine.footer import run_hint
@@ -357,15 +359,15 @@ def cmd_verify(args) -> int:
     from pathlib import Path
 
     from repro.engine.baselines import write_baseline
-    from repro.engine.runner import _scale, _spec, latest_run, verify_table
+    from repro.engine.runner import latest_run, table_scale, table_spec, verify_table
     from repro.errors import ConfigError
     from repro.store.runs import read_run_json
 
     failed = False
     for name in args.tables:
-        spec = _spec(name)
+        spec = table_spec(name)
         if args.update:
-            sc = _scale(args.scale, args.dataset)
+            sc = table_scale(args.scale, args.dataset)
             ds = args.dataset or sc.dataset_for(spec)
             path = latest_run(spec.id, sc.name, ds, retrain=False)  # baselines: one model per row
             if path is None:

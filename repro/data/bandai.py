@@ -37,6 +37,8 @@ from typing import Callable
 
 import numpy as np
 
+# the exact command that prepares a stand-in (error messages) lives with the built-in names
+from repro.data.builtin_sets import standin_prepare_command as prepare_command  # noqa: F401
 # The source reader (size caps) and the prepared-cache layout that this module used to hold
 # live in repro.data.sources and repro.data.cache; their names stay importable from here.
 # The caps are read from repro.data.sources when a source is read: patch them there.
@@ -141,15 +143,6 @@ def _builtin_spec():
 
 BANDAI2_SPEC = _builtin_spec()
 BANDAI2_CARD = card_of_spec(BANDAI2_SPEC)
-
-
-# ------------------------------------------------------------------------ locations
-def prepare_command(name: str = "bandai2") -> str:
-    """The exact command that prepares ``name`` (for error messages)."""
-    from repro.paths import BANDAI_ARCHIVE_NAME, find_bandai_archive, shared_data_dir
-
-    src = find_bandai_archive() or (shared_data_dir() / BANDAI_ARCHIVE_NAME)
-    return f"repro data prepare {name} --source {src}"
 
 
 def split_config(seed: int | None = None, test_fraction: float | None = None) -> dict:
@@ -481,7 +474,9 @@ def load_bandai2(name: str = "bandai2", mmap: bool = True):
     if found is None:
         raise MissingDataError(f"data set {name!r} is not prepared (or was prepared by an older "
                                f"version); run: {prepare_command(name)}", dataset_dir(name))
+    from repro.data.dataset_registration import prepare_command as command
+
     path, meta = found
-    return open_cache(path, meta, name, mmap=mmap)
+    return open_cache(path, meta, name, mmap=mmap, command=command)
 
 

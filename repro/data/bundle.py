@@ -202,6 +202,7 @@ def load_mini(folder: str | Path | None = None):
     the result is kept as a memory-mapped cache under ``datasets_root()/bandai2-mini/<key>/``
     (key: the bundle's content), so later loads are instant.  An unwritable cache is skipped.
     """
+    from repro.data.builtin_sets import standin_prepare_command as command
     from repro.data.cache import dataset_dir, open_cache, valid_cache, write_cache
     from repro.keys import content_key, sha256_file
 
@@ -214,7 +215,7 @@ def load_mini(folder: str | Path | None = None):
     cache_root = dataset_dir(MINI_NAME)
     meta = valid_cache(cache_root / fp)
     if meta is not None:
-        return open_cache(cache_root / fp, meta, MINI_NAME)
+        return open_cache(cache_root / fp, meta, MINI_NAME, command=command)
     arrays, meta = _decode_bundle(d, npz_sha)
     meta["fingerprint"] = fp
     try:
@@ -222,7 +223,7 @@ def load_mini(folder: str | Path | None = None):
     except OSError:
         path = None
     if path is not None and (m := valid_cache(path)) is not None:
-        return open_cache(path, m, MINI_NAME)
+        return open_cache(path, m, MINI_NAME, command=command)
     from repro.data.clipset import ClipSet
     from repro.motion.skeleton import Skeleton
 

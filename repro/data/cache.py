@@ -9,7 +9,8 @@ atomically (:func:`write_cache`, :func:`write_json_atomic`), tells whether one i
 used by ``repro doctor``), and opens it as a :class:`~repro.data.clipset.ClipSet`
 (:func:`current_cache`, :func:`open_cache`).  Its writers: the built-in stand-in
 (:mod:`repro.data.bandai`), declared data sets (:mod:`repro.data.dataset_spec`) and the
-unpacked ``bandai2-mini`` bundle (:mod:`repro.data.bundle`).
+unpacked ``bandai2-mini`` bundle (:mod:`repro.data.bundle`).  It imports none of them: a
+message that names the command preparing a data set takes it from the caller (``command``).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -56,24 +58,6 @@ def dataset_dir(name: str = "bandai2") -> Path:
     from repro.paths import datasets_root
 
     return datasets_root() / name
-
-
-def prepare_command(name: str = "bandai2") -> str:
-    """The command that prepares ``name``, for error messages: a declared data set's
-    ``repro data prepare SPEC`` (its registered spec file), else
-    :func:`repro.data.bandai.prepare_command` (imported when needed: bandai imports this)."""
-    from repro.data.dataset_spec import spec_file_of
-    from repro.errors import ReproError
-
-    try:
-        spec = spec_file_of(name)
-    except ReproError:  # a broken registration must not hide the error being reported
-        spec = None
-    if spec is not None:
-        return f"repro data prepare {spec}"
-    from repro.data.bandai import prepare_command as command
-
-    return command(name)
 
 
 # ------------------------------------------------------------------------ write
@@ -280,16 +264,18 @@ def cache_problem(path: Path) -> str | None:
     return None
 
 
-def prepared_problem(name: str = "bandai2", rebuild: str | None = None) -> str | None:
+def prepared_problem(name: str = "bandai2", rebuild: str | None = None, *,
+                     command: Callable[[str], str] | None = None) -> str | None:
     """Why the last prepared cache of ``name`` is damaged (file named, with the command that
-    rebuilds it: ``rebuild``, default :func:`prepare_command` + ``--force``); ``None`` when it
-    is intact or was never prepared.  See :func:`cache_problem`.  Any data set prepared with
-    :func:`write_cache` can register it as its ``DatasetEntry.validate_fn``."""
+    rebuilds it: ``rebuild``, else ``command(name)`` + ``--force``, ``command`` naming the data
+    set's prepare command, e.g. :func:`repro.data.dataset_registration.prepare_command`);
+    ``None`` when it is intact or was never prepared.  See :func:`cache_problem`.  Any data set
+    prepared with :func:`write_cache` can register it as its ``DatasetEntry.validate_fn``."""
     root = dataset_dir(name)
     ptr = root / POINTER
     if not ptr.exists():
         return None
-    fix = f"; rebuild with: {rebuild or prepare_command(name) + ' --force'}"
+    fix = f"; rebuild with: {rebuild or command(name) + ' --force'}"
     try:
         fp = json.loads(ptr.read_text())["fingerprint"]
         if not isinstance(fp, str) or not fp or "/" in fp or fp.startswith("."):
@@ -315,8 +301,11 @@ def current_cache(name: str = "bandai2") -> tuple[Path, dict] | None:
     return None if meta is None else (path, meta)
 
 
-def open_cache(path: Path, meta: dict, name: str, mmap: bool = True):
-    """The ClipSet stored in the cache folder ``path`` (see :func:`write_cache`)."""
+def open_cache(path: Path, meta: dict, name: str, mmap: bool = True, *,
+               command: Callable[[str], str]):
+    """The ClipSet stored in the cache folder ``path`` (see :func:`write_cache`); a file that
+    cannot be read is a DataError naming ``command(name) --force`` (``command``: the data
+    set's prepare command, e.g. :func:`repro.data.dataset_registration.prepare_command`)."""
     from repro.data.clipset import ClipSet
     from repro.motion.skeleton import Skeleton
 
@@ -325,7 +314,7 @@ def open_cache(path: Path, meta: dict, name: str, mmap: bool = True):
         try:
             arrs[k] = np.load(path / f"{k}.npy", mmap_mode="r" if mmap else None, allow_pickle=False)
         except (OSError, ValueError) as e:
-            raise DataError(f"prepared cache is damaged ({e}); run: {prepare_command(name)} --force",
+            raise DataError(f"prepared cache is damaged ({e}); run: {command(name)} --force",
                             path / f"{k}.npy") from None
     return ClipSet(
         name=name, skeleton=Skeleton.from_dict(meta["skeleton"]), fps=float(meta["fps"]),

@@ -20,10 +20,11 @@ import numpy as np
 
 from repro.data.dataset_asf import inner_path, read_skeleton_files
 from repro.data.dataset_labels import clip_stem
+from repro.data.dataset_registration import spec_key
 from repro.data.dataset_skeleton import convert_amc, convert_bvh, one_skeleton
 from repro.data.dataset_spec import (FPS_RTOL, MAX_LABELS_BYTES, PREPARE_VERSION, DatasetSpec,
                                      escape_name, is_excluded, key_material,
-                                     load_dataset_spec, naming_material, role_of, spec_key)
+                                     load_dataset_spec, naming_material, role_of)
 from repro.data.prepare_caps import FrameBudget, check_finite, joints_f32
 from repro.data.prepare_caps import resample_clip as resample_long
 from repro.errors import DataError, MissingDataError
@@ -139,7 +140,7 @@ def _check_expect(spec: DatasetSpec, spec_path: Path, clips: int, frames: int, j
 def _body(skel, spec_path: Path):
     """The body frame every protocol takes the heading from (the hips by name, or the spec's
     ``[skeleton] hips`` / ``up_joint``); an up joint in a leg is refused."""
-    from repro.motion.heading import _ancestors, body_frame
+    from repro.motion.heading import ancestors, body_frame
 
     try:
         body = body_frame(skel)
@@ -148,7 +149,7 @@ def _body(skel, spec_path: Path):
                         "LeftUpLeg / UpperLeg_L / l_hip; or name them: [skeleton] hips = "
                         "[left, right], up_joint = ...)", spec_path) from None
     L, R, U = (skel.index(n) for n in body.joints)
-    if {L, R} & set(_ancestors(skel, U)):
+    if {L, R} & set(ancestors(skel, U)):
         raise DataError(f"the up joint {body.joints[2]!r} is in a leg (below a hip); name a "
                         "joint above the pelvis: [skeleton] up_joint", spec_path)
     return body

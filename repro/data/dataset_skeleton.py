@@ -205,13 +205,15 @@ def one_skeleton(clips: list[dict], sk: SkeletonSpec, rel, where) -> list[str]:
             f"offset_tolerance = {tol:g} m{odd}: "
             + "; ".join(parts) + "; one skeleton per data set is required (if the differences "
             "are immaterial, raise offset_tolerance above them: every clip is then posed on "
-            "the reference's bones)", where)
+            "the reference's bones with its own root path, so a body of other proportions "
+            "keeps its recorded hip height: its feet float or sink by the difference)", where)
     if not worst:
         return []
     name, m, _ = max(worst, key=lambda w: w[1])
     return [f"OFFSETs of {len(worst)} file(s) differ from the reference {_where(ref, rel)}'s "
             f"by up to {_cm(m)} (joint {name!r}), within [skeleton] offset_tolerance = {tol:g} "
-            "m: every clip is posed on the reference's bones"]
+            "m: every clip is posed on the reference's bones with its own root path (feet may "
+            "float or sink by the difference)"]
 
 
 __all__ = ["convert_amc", "convert_bvh", "fold_dummy_root", "one_skeleton"]

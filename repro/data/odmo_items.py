@@ -11,11 +11,12 @@ class, never the anchor's own (the reference's pairwise loaders draw it from ano
 a class with a single clip in the pool — e.g. a small validation hold-out — pairs the anchor
 with another random window of its own clip, the only same-class choice).
 
-:class:`WindowSource` describes how the pool is made from a prepared clip set (any clip set:
-it only reads ``joints``, ``lengths``, ``labels``, ``styles`` and the data set's stored
-``split``); its :meth:`~WindowSource.describe` enters the training key of every method trained
-on windows (``builder = "odmo_windows"``, :func:`repro.engine.steps.training_items`), so every
-ODMO protocol (Tables 1-4, S1) with equal fields shares one model.  :class:`WindowItems` is the
+:class:`WindowSource` (an :class:`repro.data.item_sources.ItemSource`) describes how the pool
+is made from a prepared clip set (any clip set: it only reads ``joints``, ``lengths``,
+``labels``, ``styles`` and the data set's stored ``split``); its
+:meth:`~WindowSource.describe` enters the training key of every method trained on windows
+(``builder = "odmo_windows"``, :func:`repro.engine.steps.training_items`), so every ODMO
+protocol (Tables 1-4, S1) with equal fields shares one model.  :class:`WindowItems` is the
 pool itself: the training clips, never a test clip.
 
 Choices recorded here (docs/odmo.md):
@@ -25,7 +26,7 @@ Choices recorded here (docs/odmo.md):
   *other classes* then uniformly over that class's clips (``partner = "class_uniform"``),
   or uniformly over the other classes' clips (``"sample_uniform"``).
 - **Fixed windows for rotation methods.**  ACTOR and Action2Motion train on
-  :class:`~repro.models.items.ActionItems` (a fixed item set).  :meth:`WindowItems.as_action_items`
+  :class:`~repro.data.action_items.ActionItems` (a fixed item set).  :meth:`WindowItems.as_action_items`
   cuts ``action_windows_per_clip`` windows per pool clip at seeded random starts (the same
   distribution as an epoch's draw), in the same frame: the window's first-frame root at the
   origin, no rotation (``canon`` = a pure translation), so their samples land in ODMO's frame.
@@ -45,16 +46,21 @@ Units: metres × ``scale``, frames at the clip set's fps.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import Field
 
+from repro.data.action_items import ActionItems, ItemsConfig
+from repro.data.clip_draws import balanced_clips
 from repro.data.clipset import TEST, TRAIN
+from repro.data.item_sources import ItemSet, ItemSource
 from repro.data.windows import WindowBatch, cut_windows, window_starts
 from repro.errors import ConfigError, DataError
 from repro.keys import content_key
+from repro.motion.canon import CanonParams, root_to_origin
+from repro.motion.motion import Motion
 from repro.seeding import numpy_rng
 
 __all__ = ["WindowSource", "WindowItems", "WINDOWS_VERSION", "padded_frames"]
@@ -69,11 +75,12 @@ def padded_frames(batch: WindowBatch) -> np.ndarray:
     return (int(batch.joints.shape[1]) - np.asarray(batch.valid, dtype=np.int64)).astype(np.int64)
 
 
-class WindowSource(BaseModel):
+class WindowSource(ItemSource):
     """How ODMO's window pool is made from a data set (module docstring).  Every field enters
     :meth:`describe` and so the content keys of the models trained on it."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    VERSION: ClassVar[int] = WINDOWS_VERSION
+    ITEM_KIND: ClassVar[str] = "windows"
 
     builder: Literal["odmo_windows"] = "odmo_windows"  # the engine dispatches on this
     window: int = Field(60, ge=2)            # T: 60 HumanAct12 / UESTC, 100 MoCap (§3.1)
@@ -85,31 +92,6 @@ class WindowSource(BaseModel):
     same_class_p: float = Field(0.5, ge=0, le=1)  # P(partner has the anchor's class)
     action_windows_per_clip: int = Field(4, ge=1)  # fixed windows per clip (ACTOR, A2M)
     seed: int = 0                            # seeds the fixed windows
-
-    def describe(self) -> dict:
-        return {**self.model_dump(mode="json"), "version": WINDOWS_VERSION}
-
-    def key(self) -> str:
-        return content_key(self.describe())
-
-    @classmethod
-    def make(cls, where: str, **fields) -> "WindowSource":
-        """Validated construction; a bad field is a ConfigError naming ``where``."""
-        try:
-            return cls(**fields)
-        except ValidationError as e:
-            err = e.errors()[0]
-            field = ".".join(str(p) for p in err.get("loc", ())) or "?"
-            raise ConfigError(f"{where}: window field {field!r}: {err['msg']}") from None
-
-    @classmethod
-    def from_description(cls, d: dict) -> "WindowSource":
-        """Inverse of :meth:`describe` (the version must match)."""
-        d = dict(d)
-        v = d.pop("version", None)
-        if v != WINDOWS_VERSION:
-            raise DataError(f"window source version {v!r}, this code makes {WINDOWS_VERSION}")
-        return cls.make("items", **d)
 
     def split_clipset(self, clipset):
         """The clip set with the split the windows use (the data set's own)."""
@@ -131,7 +113,7 @@ class WindowSource(BaseModel):
 
 
 @dataclass(frozen=True, eq=False)
-class WindowItems:
+class WindowItems(ItemSet):
     """A pool of clips to cut ODMO windows from (module docstring).
 
     ``indices`` (N,) clip rows of ``clipset``; ``labels``, ``styles``, ``clip_index`` (N,) int64
@@ -158,13 +140,8 @@ class WindowItems:
     def y_weight(self) -> float:
         return self.source.y_weight
 
-    @property
-    def skeleton(self):
-        return self.clipset.skeleton
-
-    @property
-    def fps(self) -> float:
-        return float(self.clipset.fps)
+    def frames_basis(self):
+        return self.clipset
 
     @property
     def n_joints(self) -> int:
@@ -177,10 +154,6 @@ class WindowItems:
     @property
     def style_names(self) -> tuple[str, ...]:
         return tuple(self.clipset.style_names)
-
-    @property
-    def n_classes(self) -> int:
-        return len(self.label_names)
 
     @property
     def labels(self) -> torch.Tensor:
@@ -225,17 +198,9 @@ class WindowItems:
         return self.cut(clips, starts)
 
     def balanced_clips(self, n: int, rng: np.random.Generator) -> np.ndarray:
-        """``n`` clip rows, a class uniformly then a clip of it uniformly (with replacement)."""
-        labels = self.clipset.labels[self.indices]
-        classes = np.unique(labels)
-        pick = classes[rng.integers(0, classes.size, size=int(n))]
-        out = np.empty(int(n), dtype=np.int64)
-        for c in classes:
-            where = np.flatnonzero(pick == c)
-            if where.size:
-                pool = self.indices[labels == c]
-                out[where] = pool[rng.integers(0, pool.size, size=where.size)]
-        return out
+        """``n`` clip rows, a class uniformly then a clip of it uniformly (with replacement;
+        :func:`repro.data.clip_draws.balanced_clips`' ``"class_first"`` recipe)."""
+        return balanced_clips(self.clipset, self.indices, n, rng, recipe="class_first")
 
     def draw(self, n: int, rng: np.random.Generator) -> WindowBatch:
         """One epoch's class-balanced draw of ``n`` windows."""
@@ -281,20 +246,16 @@ class WindowItems:
         rng = numpy_rng(self.source.seed, "odmo_windows", "fixed")
         return self.random_cut(clips, rng)
 
-    def as_action_items(self):
-        """:meth:`fixed_windows` as :class:`~repro.models.items.ActionItems` (ACTOR and
+    def as_action_items(self) -> ActionItems:
+        """:meth:`fixed_windows` as :class:`~repro.data.action_items.ActionItems` (ACTOR and
         Action2Motion train on them; :meth:`action_items`)."""
         return self.action_items(self.fixed_windows())
 
-    def action_items(self, b: WindowBatch):
-        """Windows ``b`` as :class:`~repro.models.items.ActionItems` (module docstring):
+    def action_items(self, b: WindowBatch) -> ActionItems:
+        """Windows ``b`` as :class:`~repro.data.action_items.ActionItems` (module docstring):
         rotations from the clip set, the window's first-frame root at the origin, no rotation;
         duration ``window`` for all; initial motion = the window's first frame; next tag = the
         item's own tag (unused by these methods)."""
-        from repro.models.items import ActionItems, ItemsConfig
-        from repro.motion.canon import root_to_origin
-        from repro.motion.motion import Motion
-
         if self.source.scale != 1.0:
             raise ConfigError("windows with scale != 1 have no rotation form (ACTOR, A2M need one)")
         m = Motion.from_clipset(self.clipset, b.indices, b.starts, self.window, pad=True)
@@ -311,14 +272,12 @@ class WindowItems:
             config=ItemsConfig(n_init=1, max_frames=T), source=self.key())
 
 
-def label_condition_items(label_names, labels, window: int, skeleton, fps: float, placeholder):
+def label_condition_items(label_names, labels, window: int, skeleton, fps: float,
+                          placeholder) -> ActionItems:
     """Label-only condition items for ACTOR / Action2Motion in ODMO's protocols: tag and
     duration ``window`` per item, identity canon (samples come back in the window frame),
     initial motion = ``placeholder`` (a (1, 1) Motion from the *training* pool, never from a
     scored clip; read only by methods that use an initial pose)."""
-    from repro.models.items import ActionItems, ItemsConfig
-    from repro.motion.canon import CanonParams
-
     labels = torch.as_tensor(np.asarray(labels, np.int64))
     N = int(labels.numel())
     init = placeholder.select(torch.zeros(N, dtype=torch.long))

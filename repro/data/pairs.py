@@ -6,8 +6,7 @@ previous action ``S_p`` (label ``a_p``), a transition ``T`` and the current acti
 (composed from real single-action clips), so a sample is two consecutive ``ROLE_ACTION``
 segments of one sequence with the composed transition between them.
 
-Containers (this module) and the builder :class:`PairSource` (:mod:`repro.data.pairs_build`,
-re-exported here):
+Containers (this module; the builder is :class:`repro.data.pairs_build.PairSource`):
 
 - :class:`PairItems`: N samples packed in one :class:`~repro.motion.motion.Motion` of
   ``max(l_p + l_t + l_c)`` frames in the **world frame of their sequence**; frames
@@ -34,7 +33,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from repro.data.action_items import ActionItems, ItemsConfig
+from repro.data.item_sources import ItemSet
 from repro.keys import content_key
+from repro.motion.canon import marionette_normalize
 from repro.motion.motion import Motion
 
 #: Bumped when pairs are built differently (enters :meth:`PairItems.key` via ``source``).
@@ -73,7 +75,7 @@ def last_frames(motion: Motion, lengths: torch.Tensor, k: int) -> Motion:
 
 
 @dataclass(frozen=True, eq=False)
-class PairItems:
+class PairItems(ItemSet):
     """N MultiAct samples (module docstring).  ``l_p``, ``l_t``, ``l_c``, ``prev_labels``
     (``a_p``), ``labels`` (``a_c``) are (N,) int64; ``segment_index`` (N,) the ``S_c`` segment
     of the source :class:`~repro.data.sequences.SequenceSet` (-1 when not from one);
@@ -113,17 +115,8 @@ class PairItems:
     def __len__(self) -> int:
         return self.motion.batch_size
 
-    @property
-    def skeleton(self):
-        return self.motion.skeleton
-
-    @property
-    def fps(self) -> float:
-        return self.motion.fps
-
-    @property
-    def n_classes(self) -> int:
-        return len(self.label_names)
+    def frames_basis(self) -> Motion:
+        return self.motion
 
     @property
     def total(self) -> torch.Tensor:
@@ -168,8 +161,8 @@ class PairItems:
         return gather_frames(self.motion, self.l_p, n), n
 
     # -- label-only generators -------------------------------------------------------------
-    def as_action_items(self, n_init: int = 4):
-        """These pairs as single-action :class:`~repro.models.items.ActionItems`, for
+    def as_action_items(self, n_init: int = 4) -> ActionItems:
+        """These pairs as single-action :class:`~repro.data.action_items.ActionItems`, for
         label-only generators (ACTOR in MultiAct's Tables 1-3): ``action`` = ``S_c``
         (``lengths = l_c``), ``initial`` = the last ``n_init`` frames of ``S_p``; every item is
         Marionette-normalised at the last ``S_p`` frame (``canon``), so ``to_world`` of a
@@ -178,9 +171,6 @@ class PairItems:
         placeholder: no label-only generator reads it); ``trajectory`` = the action's root
         ground path in the item frame, ``in_place`` all False (no class statistics here);
         ``clip_index`` / ``segment_index`` carried over."""
-        from repro.models.items import ActionItems, ItemsConfig
-        from repro.motion.canon import marionette_normalize
-
         K = int(n_init)
         if K < 1:
             raise ValueError("n_init must be >= 1")
@@ -265,13 +255,3 @@ def save_npz(path: str | Path, arrays: dict) -> Path:
     atomic_write_bytes(Path(path), buf.getvalue())
     return Path(path)
 
-
-def __getattr__(name: str):
-    """The builder lives in :mod:`repro.data.pairs_build` (this file holds the containers);
-    ``from repro.data.pairs import PairSource`` still works (loaded on first use, which also
-    avoids an import cycle)."""
-    if name in ("PairSource", "resample_clipset"):
-        from repro.data import pairs_build
-
-        return getattr(pairs_build, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

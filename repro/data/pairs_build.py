@@ -1,9 +1,9 @@
 """The MultiAct sample builder: ``[S_p, T, S_c]`` pairs from composed sequences (data layer).
 
-:class:`PairSource` describes how MultiAct's training and test samples (protocols.md §4.1;
-MultiAct supp. "Training data for MACVAE" / "Test data for MACVAE") are made from a prepared
-single-action clip set, and builds them as :class:`repro.data.pairs.PairItems` (re-exported
-from :mod:`repro.data.pairs`).  Its ``describe()`` enters the training key of every method
+:class:`PairSource` (an :class:`repro.data.item_sources.ItemSource`) describes how MultiAct's
+training and test samples (protocols.md §4.1; MultiAct supp. "Training data for MACVAE" /
+"Test data for MACVAE") are made from a prepared single-action clip set, and builds them as
+:class:`repro.data.pairs.PairItems`.  Its ``describe()`` enters the training key of every method
 trained on pairs (``builder = "multiact_pairs"``, :func:`repro.engine.steps.training_items`).
 
 Construction (every number is a :class:`PairSource` field; "frames" are frames at ``fps``,
@@ -59,14 +59,14 @@ Units: metres, frames at ``fps``.
 from __future__ import annotations
 
 import math
-from collections import OrderedDict
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from repro.data.clipset import TEST, TRAIN
+from repro.data.item_sources import ItemSource, cached
 from repro.data.pairs import PAIRS_VERSION, PairItems
 from repro.errors import DataError
 from repro.keys import content_key
@@ -77,11 +77,13 @@ __all__ = ["PairSource", "resample_clipset", "resampled_sequences"]
 _SPLITS = {TRAIN: "train", TEST: "test"}
 
 
-class PairSource(BaseModel):
+class PairSource(ItemSource):
     """How MultiAct's ``[S_p, T, S_c]`` samples are made from a data set (module docstring;
     protocols.md §4.1).  Every field enters :meth:`describe` and so the content keys."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    VERSION_FIELD: ClassVar[str] = "pairs_version"
+    VERSION: ClassVar[int] = PAIRS_VERSION
+    ITEM_KIND: ClassVar[str] = "pairs"
 
     builder: Literal["multiact_pairs"] = "multiact_pairs"   # the engine dispatches on this
     fps: float = Field(20.0, gt=0)          # MultiAct's 20 fps (slerp-resampled, docstring 2.)
@@ -128,43 +130,21 @@ class PairSource(BaseModel):
         return self
 
     # -- description ----------------------------------------------------------------------
-    def describe(self) -> dict:
-        """Every field, the composition fully resolved, and the builder's version."""
+    def describe_fields(self) -> dict:
+        """Every field, the composition fully resolved."""
         from repro.data.sequences import ComposeConfig
 
         d = self.model_dump(mode="json")
         d["compose"] = ComposeConfig(**self.compose).model_dump(mode="json")
-        d["pairs_version"] = PAIRS_VERSION
         return d
-
-    def key(self) -> str:
-        return content_key(self.describe())
-
-    @classmethod
-    def make(cls, where: str, **fields) -> "PairSource":
-        """``PairSource(**fields)``; a bad value is a ConfigError naming ``where`` and the
-        field."""
-        from repro.config_errors import resolve_config
-
-        return resolve_config(cls, fields, f"{where}:", unnamed="parameters", quote=False)
-
-    @classmethod
-    def from_description(cls, d: dict) -> "PairSource":
-        """The source :meth:`describe` wrote (a training job's config)."""
-        d = dict(d)
-        version = d.pop("pairs_version", PAIRS_VERSION)
-        if version != PAIRS_VERSION:
-            raise DataError(f"pairs were described by version {version}, this code builds "
-                            f"version {PAIRS_VERSION}")
-        return cls(**d)
 
     # -- data -----------------------------------------------------------------------------
     def split_clipset(self, clipset):
         """``clipset`` resampled to ``fps`` with its stored split: what the evaluator trains on
         (no test clip is seen by the recogniser).  In-process cached by fingerprint."""
-        return _cached(content_key({"what": "clipset", "data": clipset.fingerprint,
-                                    "fps": self.fps}),
-                       lambda: resample_clipset(clipset, self.fps))
+        return cached(content_key({"what": "clipset", "data": clipset.fingerprint,
+                                   "fps": self.fps}),
+                      lambda: resample_clipset(clipset, self.fps))
 
     def sequences(self, clipset):
         """The composed sequences of ``clipset`` at its native fps (in-process cached).  A
@@ -183,10 +163,8 @@ class PairSource(BaseModel):
         frame in its resampled sequence), ``l_p``, ``l_t``, ``l_c``, ``prev_label``, ``label``,
         ``prev_clip``, ``clip``; ``dropped``: {filter: count} of candidates removed."""
         split = _check_split(split)
-        key = content_key({"what": "table", "source": self.describe(),
-                           "data": clipset.fingerprint, "kind": type(clipset).__name__,
-                           "split": split})
-        tab = _cached(key, lambda: self._table(clipset, split))
+        tab = self.cached_build("table", clipset, lambda: self._table(clipset, split),
+                                kind=type(clipset).__name__, split=split)
         return {**tab, "dropped": dict(tab["dropped"])}   # arrays are read-only
 
     def pairs(self, clipset, split: int) -> PairItems:
@@ -399,8 +377,8 @@ def _resampled(seqs, fps: float) -> dict:
         return {"root": torch.cat(roots), "rot6d": torch.cat(rots), "starts": starts,
                 "lengths": lengths}
 
-    return _cached(content_key({"what": "resampled", "sequences": seqs.fingerprint,
-                                "fps": float(fps), "version": PAIRS_VERSION}), build)
+    return cached(content_key({"what": "resampled", "sequences": seqs.fingerprint,
+                               "fps": float(fps), "version": PAIRS_VERSION}), build)
 
 
 def resampled_sequences(seqs, fps: float) -> dict:
@@ -457,19 +435,3 @@ class _one_thread:
     def __exit__(self, *exc):
         torch.set_num_threads(self.before)
 
-
-# Pairs are immutable in use and cost seconds to build: keep the last few per process.
-_CACHE: "OrderedDict[str, object]" = OrderedDict()
-_CACHE_SIZE = 16
-
-
-def _cached(key: str, build):
-    hit = _CACHE.get(key)
-    if hit is not None:
-        _CACHE.move_to_end(key)
-        return hit
-    out = build()
-    _CACHE[key] = out
-    while len(_CACHE) > _CACHE_SIZE:
-        _CACHE.popitem(last=False)
-    return out

@@ -10,58 +10,10 @@ ConfigError with a did-you-mean suggestion.
 from __future__ import annotations
 
 import difflib
-from dataclasses import dataclass, field
-from typing import Callable
 
+from repro.data.builtin_sets import STANDINS, upstream_entries
+from repro.data.dataset_entry import DatasetEntry, DatasetStatus  # noqa: F401 (the registry's)
 from repro.errors import ConfigError, MissingDataError
-
-
-@dataclass(frozen=True)
-class DatasetStatus:
-    """Whether a data set is ready: ``location`` is where it is (or is looked for),
-    ``missing`` says what is absent and how to get it (``None`` when prepared)."""
-
-    prepared: bool
-    location: str
-    fingerprint: str | None
-    missing: str | None
-
-
-@dataclass(frozen=True)
-class DatasetEntry:
-    """One registered data set.
-
-    ``status_fn`` answers :meth:`status` (subclasses may override :meth:`status` instead);
-    ``loader`` returns the ClipSet (``None``: the data set has no ClipSet loader here);
-    ``validate_fn`` answers :meth:`validate` (``None``: nothing beyond :meth:`status` is checked).
-    """
-
-    name: str
-    description: str
-    is_paper_dataset: bool
-    status_fn: Callable[[], DatasetStatus] | None = field(default=None, repr=False, compare=False)
-    loader: Callable[[], object] | None = field(default=None, repr=False, compare=False)
-    validate_fn: Callable[[], str | None] | None = field(default=None, repr=False,
-                                                         compare=False)
-
-    def status(self) -> DatasetStatus:
-        if self.status_fn is None:
-            return DatasetStatus(False, "", None, "no status check is registered for this data set")
-        return self.status_fn()
-
-    def validate(self) -> str | None:
-        """Open the data set's files cheaply (headers, shapes, stored checksums, the reader's
-        own checks) and say why they are damaged, naming the file; ``None`` when they read back
-        intact or are not there (:meth:`status` says what is missing).  ``repro doctor`` reports
-        it (issue 16: it used to say "prepared yes" for any file present)."""
-        return None if self.validate_fn is None else self.validate_fn()
-
-    def load(self):
-        if self.loader is None:
-            st = self.status()
-            raise MissingDataError(f"data set {self.name!r} cannot be loaded as a clip set"
-                                   + (f": {st.missing}" if st.missing else ""))
-        return self.loader()
 
 
 # ------------------------------------------------------------------------ the stand-ins
@@ -91,8 +43,9 @@ def _load_bandai2():
 
 def _bandai2_validate() -> str | None:
     from repro.data.cache import prepared_problem
+    from repro.data.dataset_registration import prepare_command
 
-    return prepared_problem("bandai2")
+    return prepared_problem("bandai2", command=prepare_command)
 
 
 def _mini_status() -> DatasetStatus:
@@ -167,38 +120,15 @@ def _mini_validate() -> str | None:
 
 
 def _builtin_entries() -> list[DatasetEntry]:
+    bandai2, mini = STANDINS
     return [
-        DatasetEntry("bandai2", "Bandai-Namco-Research-Motiondataset-2 (real mocap stand-in: "
+        DatasetEntry(bandai2, "Bandai-Namco-Research-Motiondataset-2 (real mocap stand-in: "
                      "2,902 clips, 10 actions x 7 styles, 30 fps; CC BY-NC 4.0)", False,
                      _bandai2_status, _load_bandai2, _bandai2_validate),
-        DatasetEntry("bandai2-mini", "bundled deterministic subset of bandai2 (4 clips per "
+        DatasetEntry(mini, "bundled deterministic subset of bandai2 (4 clips per "
                      "action x style; default at the quick scale; CC BY-NC 4.0)", False,
                      _mini_status, _load_mini, _mini_validate),
     ]
-
-
-def _upstream_entries() -> list[DatasetEntry]:
-    import importlib
-
-    try:
-        mod = importlib.import_module("repro.data.upstream")
-    except ModuleNotFoundError as e:
-        if e.name == "repro.data.upstream":
-            return []
-        raise
-    if getattr(mod, "__file__", None) is None:  # a bare folder (namespace package): no entries
-        return []
-    return list(mod.ENTRIES)
-
-
-def builtin_names() -> set[str]:
-    """Names a user's data-set spec may not take: the stand-ins, their sequence views and the
-    papers' data sets."""
-    from repro.data.sequence_views import SEQUENCE_VIEWS
-    from repro.specs.names import DATASETS as KNOWN
-
-    return ({e.name for e in _builtin_entries() + _upstream_entries()} | set(SEQUENCE_VIEWS)
-            | set(KNOWN))
 
 
 def _spec_current(name: str, path):
@@ -206,7 +136,7 @@ def _spec_current(name: str, path):
     import json
 
     from repro.data.cache import POINTER, current_cache, dataset_dir
-    from repro.data.dataset_spec import check_current
+    from repro.data.dataset_registration import check_current
 
     found = current_cache(name)
     if found is None:
@@ -232,20 +162,21 @@ def _spec_status(name: str, path) -> DatasetStatus:
 
 def _spec_load(name: str, path):
     from repro.data.cache import open_cache
+    from repro.data.dataset_registration import prepare_command
 
     found, why = _spec_current(name, path)
     if found is None:
         raise MissingDataError(f"data set {name!r}: {why}")
-    return open_cache(found[0], found[1], name)
+    return open_cache(found[0], found[1], name, command=prepare_command)
 
 
 def _spec_entries() -> list[DatasetEntry]:
     """The data sets of the spec files registered in ``$REPRO_DATASETS``
-    (:mod:`repro.data.dataset_spec`)."""
+    (:mod:`repro.data.dataset_registration`)."""
     from functools import partial
 
     from repro.data.cache import prepared_problem
-    from repro.data.dataset_spec import declared_specs
+    from repro.data.dataset_registration import declared_specs
 
     out = []
     for name, (path, spec) in declared_specs()[0].items():
@@ -259,7 +190,7 @@ def _spec_entries() -> list[DatasetEntry]:
 
 def _build() -> dict[str, DatasetEntry]:
     out: dict[str, DatasetEntry] = {}
-    for e in _builtin_entries() + _upstream_entries():
+    for e in _builtin_entries() + upstream_entries():
         if e.name in out:
             raise RuntimeError(f"data set {e.name!r} is registered twice")
         out[e.name] = e
@@ -275,14 +206,22 @@ def reset() -> None:
 
 
 class _Registry(dict):
-    """A dict built on first use (so importing this module stays cheap and the upstream
-    module may import :class:`DatasetEntry` from here without a cycle)."""
+    """A dict built on first use (so importing this module stays cheap), and again after a
+    spec file was registered (:func:`repro.data.dataset_registration.registrations` changed
+    since it was built: what :func:`reset` does, without that module importing this one)."""
 
     _built = False
+    _registrations = 0
 
     def _ensure(self) -> None:
+        from repro.data.dataset_registration import registrations
+
+        if self._built and self._registrations != registrations():
+            self.clear()
+            self._built = False
         if not self._built:
             self._built = True
+            self._registrations = registrations()
             self.update(_build())
 
     def __getitem__(self, k):
@@ -333,7 +272,7 @@ def dataset_names() -> list[str]:
 def get_entry(name: str) -> DatasetEntry:
     """The entry for ``name`` (a registered name, or the path of a data-set spec file, which
     is registered on the way); a ConfigError with a did-you-mean suggestion if unknown."""
-    from repro.data.dataset_spec import is_spec_path, register_spec_path
+    from repro.data.dataset_registration import is_spec_path, register_spec_path
 
     if is_spec_path(name):
         name = register_spec_path(name)
@@ -349,7 +288,7 @@ def unknown_dataset_message(name: str) -> str:
     a spec path nor ``$REPRO_DATASETS``)."""
     import os
 
-    from repro.data.dataset_spec import ENV, skipped_reason
+    from repro.data.dataset_registration import ENV, skipped_reason
 
     near = difflib.get_close_matches(name, dataset_names(), n=1)
     hint = f"; did you mean {near[0]!r}?" if near else ""

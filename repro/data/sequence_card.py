@@ -23,6 +23,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 
 from repro.data.clipset import TEST, TRAIN
@@ -30,12 +32,12 @@ from repro.data.sequences import (COMPOSE_VERSION, CARD_SCHEMA, ROLE_ACTION, ROL
                                   STAND_IN_NOTE, foot_joints)
 from repro.data.tag_chains import draw_test_sequences, test_set_stats
 
-__all__ = ["card", "fidelity", "junction_quality", "junction_fidelity", "truncated_actions",
-           "CHAINS", "CHAIN_LENGTH", "TOP_K"]
+__all__ = ["card", "card_of", "fidelity", "junction_quality", "quality_of", "junction_fidelity",
+           "truncated_actions", "CHAINS", "CHAIN_LENGTH", "TOP_K"]
 
 #: tag chains per test set, their length and the sufficient set's top-k (supp. §4.2)
 CHAINS, CHAIN_LENGTH, TOP_K = 500, 20, 4
-#: the NM protocols whose items cap an action at ``max_frames`` (repro.data.contexts.ItemSource)
+#: the NM protocols whose items cap an action at ``max_frames`` (repro.data.contexts.ActionSource)
 _NM_PROTOCOLS = ("single_action", "multi_action", "ss_ar")
 
 
@@ -113,6 +115,23 @@ def junction_quality(seqs) -> dict:
     return out
 
 
+def quality_of(seqs) -> dict:
+    """:func:`junction_quality` of the sequence set ``seqs``, computed once and kept in its
+    ``memo`` (a copy renamed by :func:`repro.data.sequences.sequences_for` shares it)."""
+    if "junction_quality" not in seqs.memo:
+        seqs.memo["junction_quality"] = junction_quality(seqs)
+    return seqs.memo["junction_quality"]
+
+
+def card_of(seqs) -> dict:
+    """The card of the sequence set ``seqs`` (:func:`card`: what ``repro data info`` prints and
+    ``card.json`` stores), computed once and kept in its ``memo``; a fresh JSON-able copy on
+    every call."""
+    if "card" not in seqs.memo:
+        seqs.memo["card"] = card(seqs)
+    return json.loads(json.dumps(seqs.memo["card"]))
+
+
 def _pair_summary(counts: np.ndarray, pref: np.ndarray) -> dict:
     total = int(counts.sum())
     flat = np.sort(counts.reshape(-1))[::-1]
@@ -173,7 +192,7 @@ def card(seqs) -> dict:
                       "test_summary": _pair_summary(test_counts, seqs.preference)},
         "preference": {"label_names": names, "matrix": seqs.preference.tolist(),
                        "nonzero": int((seqs.preference > 0).sum())},
-        "junction_quality": seqs.junction_quality(),
+        "junction_quality": quality_of(seqs),
         "fidelity": fidelity(seqs),
     }
 
@@ -247,11 +266,11 @@ def junction_fidelity(seqs) -> dict:
 
 def truncated_actions(seqs) -> dict:
     """Per scale profile: share of training action segments longer than its ``max_frames``."""
-    from repro.data.contexts import ItemSource
+    from repro.data.contexts import ActionSource
     from repro.specs.scales import SCALE_NAMES, resolve_scale
 
     lens = seqs.seg_length[seqs.segments(split=TRAIN, role=ROLE_ACTION)]
-    default = ItemSource.model_fields["max_frames"].default
+    default = ActionSource.model_fields["max_frames"].default
     out = {}
     for name in SCALE_NAMES:
         prof = resolve_scale(name)

@@ -11,7 +11,9 @@ import json
 
 import numpy as np
 
+from repro.data.builtin_sets import SEQUENCE_VIEWS  # name → source data set (docs/data.md)
 from repro.data.clipset import ClipSet
+from repro.data.sequence_card import card_of
 from repro.data.sequences import (CARD_SCHEMA, COMPOSE_VERSION, ComposeConfig, SequenceSet,
                                   sequences_for)
 from repro.errors import ConfigError
@@ -19,8 +21,6 @@ from repro.errors import ConfigError
 __all__ = ["SEQUENCE_VIEWS", "load_view", "view_dir", "prepare_view", "view_card",
            "view_status"]
 
-#: Sequence views: name → source data set (not registered data sets; see docs/data.md).
-SEQUENCE_VIEWS = {"bandai2-seq": "bandai2", "bandai2-seq-mini": "bandai2-mini"}
 _POINTER = "current.json"
 
 
@@ -72,7 +72,7 @@ def prepare_view(name: str) -> dict:
 
     t0 = time.perf_counter()
     seqs = load_view(name)
-    card = seqs.card()
+    card = card_of(seqs)
     root = view_dir(name)
     folder = root / seqs.fingerprint
     reused = False
@@ -109,7 +109,7 @@ def view_card(name: str) -> dict:
             and card.get("source", {}).get("fingerprint") == src.fingerprint
             and card.get("config") == ComposeConfig().model_dump(mode="json")):
         return card
-    return sequences_for(src, ComposeConfig(), name=name).card()
+    return card_of(sequences_for(src, ComposeConfig(), name=name))
 
 
 def view_status(name: str):

@@ -42,7 +42,6 @@ from __future__ import annotations
 import collections
 import dataclasses
 import hashlib
-import json
 import math
 import threading
 from dataclasses import dataclass, field
@@ -194,7 +193,9 @@ class SequenceSet:
     trans_length: np.ndarray = field(repr=False)
     preference: np.ndarray = field(repr=False)
     fingerprint: str
-    _cache: dict = field(default_factory=dict, repr=False, compare=False)
+    #: summaries computed from the set, kept with it (:func:`repro.data.sequence_card.card_of`,
+    #: :func:`~repro.data.sequence_card.quality_of`)
+    memo: dict = field(default_factory=dict, repr=False, compare=False)
 
     # --- basics ------------------------------------------------------------------------
     def __len__(self) -> int:
@@ -305,24 +306,6 @@ class SequenceSet:
             same &= self.seq_split[self.seg_seq[:-1]] == split
         a, b = self.seg_label[:-1][same], self.seg_label[1:][same]
         return np.bincount(a * C + b, minlength=C * C).reshape(C, C).astype(np.int64)
-
-    def junction_quality(self) -> dict:
-        """Velocity jump and foot slide at junctions vs inside the clips
-        (:func:`repro.data.sequence_card.junction_quality`)."""
-        if "junction_quality" not in self._cache:
-            from repro.data.sequence_card import junction_quality
-
-            self._cache["junction_quality"] = junction_quality(self)
-        return self._cache["junction_quality"]
-
-    def card(self) -> dict:
-        """A JSON-able summary (what ``repro data info`` prints and ``card.json`` stores;
-        :func:`repro.data.sequence_card.card`)."""
-        if "card" not in self._cache:
-            from repro.data.sequence_card import card
-
-            self._cache["card"] = card(self)
-        return json.loads(json.dumps(self._cache["card"]))
 
 
 # ============================================================================ composition
@@ -569,6 +552,6 @@ def sequences_for(clips: ClipSet, config: ComposeConfig | dict | None = None, *,
             while len(_CACHE) > _CACHE_SIZE:
                 _CACHE.popitem(last=False)
     if name is not None and name != hit.name:  # the card names the set; quality is shared
-        keep = {k: v for k, v in hit._cache.items() if k == "junction_quality"}
-        hit = dataclasses.replace(hit, name=name, _cache=keep)
+        keep = {k: v for k, v in hit.memo.items() if k == "junction_quality"}
+        hit = dataclasses.replace(hit, name=name, memo=keep)
     return hit

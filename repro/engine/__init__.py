@@ -8,7 +8,7 @@ in its key.
 
 from __future__ import annotations
 
-import importlib
+from repro.lazy_exports import lazy_getattr
 
 _EXPORTS = {
     "Job": "job", "JobContext": "job", "topo_order": "job",
@@ -18,9 +18,4 @@ _EXPORTS = {
     "clear_source_cache": "source_hash", "RichProgressHook": "progress",
 }
 __all__ = sorted(_EXPORTS)
-
-
-def __getattr__(name: str):
-    if name in _EXPORTS:
-        return getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_getattr(__name__, _EXPORTS)

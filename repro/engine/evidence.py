@@ -243,7 +243,13 @@ def qualified_verdict(verdict: str, evidence: dict) -> str:
     return CONTRADICTED
 
 
-def evaluator_text(ev: dict | None) -> str | None:
+def evaluator_text(ev: dict | None, dataset: str | None = None) -> str | None:
+    """The evaluator in a claim's evidence; it was trained on the run's data set: "the
+    stand-in" for a built-in stand-in (or when none is named), "<name> (own data)" for one a
+    data-set spec declares (issue 28: own data is never called a stand-in), the paper data
+    set's name for a paper's."""
+    from repro.specs import names
+
     if not ev:
         return None
     s = f"{ev.get('kind')} seed {ev.get('seed', 0)}"
@@ -251,4 +257,9 @@ def evaluator_text(ev: dict | None) -> str | None:
         s += f", heading {ev['heading']}"
     for k, v in sorted((ev.get("settings") or {}).items()):
         s += f", {k} {v}"
-    return s + " (trained by the harness on the stand-in)"
+    info = names.DATASETS.get(dataset) if dataset is not None else None
+    if dataset is None or (info is not None and info.standin):
+        where = "the stand-in"
+    else:
+        where = f"{dataset} (own data)" if info is None else dataset
+    return s + f" (trained by the harness on {where})"

@@ -145,7 +145,7 @@ def figure_claim(spec, cl, cells: dict[tuple[str, str], list[float]],
                  values: list[dict] | None = None) -> dict:
     """A claim's verdict on a figure's per-x cells (module docstring); ``values`` (the raw
     records) pair each replicate's points for the slopes of a trend along x."""
-    from repro.engine.tables import _conjunction, _pairs_on
+    from repro.engine.comparisons import conjunction, pairs_on
 
     base = {"id": cl.id, "kind": cl.kind, "source": cl.source}
 
@@ -178,11 +178,11 @@ def figure_claim(spec, cl, cells: dict[tuple[str, str], list[float]],
         for x in xs:
             key = x_cell_id(col, x)
             counts |= {len(cells[(r, key)]) for r in _rows_needed(spec, cl, col)}
-            got = _pairs_on(spec, cl, col, key, cells)
+            got = pairs_on(spec, cl, col, key, cells)
             if isinstance(got, str):
                 return not_evaluated(f"x {x}: {got}")
             pairs.extend(got)
-    out = _conjunction(base, pairs, lead=_coverage(lo, hi, xs_by_col, counts, cl.x_range is None))
+    out = conjunction(base, pairs, lead=_coverage(lo, hi, xs_by_col, counts, cl.x_range is None))
     out["x"] = sorted({x for v in xs_by_col.values() for x in v})
     return out
 
@@ -220,7 +220,7 @@ def slope(xs: list[int], ys: list[float]) -> float:
 
 
 def _trend_along_x(spec, cl, cells, values, xs_by_col, lo, hi, base) -> dict:
-    from repro.engine.tables import _conjunction
+    from repro.engine.comparisons import conjunction
     from repro.stats.claims import mean_probability
 
     direction = _TREND[cl.direction]
@@ -251,7 +251,7 @@ def _trend_along_x(spec, cl, cells, values, xs_by_col, lo, hi, base) -> dict:
     lead = (f"{_coverage(lo, hi, xs_by_col, counts, cl.x_range is None)}; "
             "least-squares slope per replicate, "
             f"{how} from its Student-t posterior")
-    out = _conjunction(base, results, lead=lead, notes=notes)
+    out = conjunction(base, results, lead=lead, notes=notes)
     out["pairwise"] = [p for p, _, _ in results]
     out["slopes"] = slopes
     out["x"] = sorted({x for v in xs_by_col.values() for x in v})

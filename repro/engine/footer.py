@@ -42,7 +42,7 @@ def data_words(dataset: str) -> str:
     if info is not None:
         return f"STAND-IN {dataset}" if info.standin else dataset
     try:
-        from repro.data.dataset_spec import spec_file_of
+        from repro.data.dataset_registration import spec_file_of
 
         path = spec_file_of(dataset)
     except ReproError:

@@ -234,7 +234,7 @@ class JobContext:
     - ``out``: the folder to write the payload into (published atomically afterwards);
     - ``scratch``: a persistent folder for this key (checkpoints), kept after a kill and given
       to the next attempt with the same key, removed once the object is published;
-    - ``inputs``: the input objects (:class:`~repro.store.objects.StoredObject`), in order;
+    - ``inputs``: the input objects (:class:`~repro.store.object_files.StoredObject`), in order;
     - ``seed``: the job's seed (``None`` for deterministic jobs);
     - ``progress(done, total=None, message=None)``: report progress;
     - ``logger``: a logger whose records also go to the key's log file in the store.

@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import threading
 
-from repro.engine.executor import COMPUTED, HIT, ProgressHook
+from repro.engine.executor import ProgressHook
+from repro.engine.job_run import COMPUTED, HIT
 
 _MARK = {HIT: "[green]hit[/]", COMPUTED: "[cyan]computed[/]", "failed": "[red]failed[/]",
          "interrupted": "[yellow]interrupted[/]", "uncached": "[magenta]uncached[/]"}

@@ -11,7 +11,7 @@ card Ray gave it, so a ``cuda:N`` job runs there as ``cuda`` (the index is place
 the key).  The profiles state no memory, so tasks ask for none.
 
 The content-addressed store stays the data path: a task runs the job exactly as a local pool
-worker does (:func:`repro.engine.executor.run_in_worker`: same thread settings, same file lock,
+worker does (:func:`repro.engine.job_run.run_in_worker`: same thread settings, same file lock,
 re-check and atomic publish into the store at the driver's path) and returns only the small
 manifest of the object it published; Ray's object store never carries a payload.  So a table
 computed through Ray is bitwise the table computed locally, and a rerun, local or on Ray, finds
@@ -48,11 +48,12 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from repro.engine.executor import (CANCELLED, INTERRUPTED, Backend, ProgressHook,
-                                   dispatch_progress, run_in_worker)
+from repro.engine.executor import Backend, ProgressHook, dispatch_progress
 from repro.engine.job import Job
+from repro.engine.job_run import CANCELLED, INTERRUPTED, run_in_worker
 from repro.errors import ConfigError
-from repro.store.objects import Store, StoredObject
+from repro.store.object_files import StoredObject
+from repro.store.objects import Store
 
 INSTALL_HINT = "pip install 'repro[ray]'"
 _STOP_GRACE_S = 10.0  # after a polite cancel (KeyboardInterrupt in the task), force-kill

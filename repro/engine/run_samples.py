@@ -62,9 +62,9 @@ class BandSamples:
 
     @property
     def protocol(self):
-        from repro.engine.steps import _protocol
+        from repro.engine.steps import protocol_of
 
-        return self._get("protocol", lambda: _protocol(self.config))
+        return self._get("protocol", lambda: protocol_of(self.config))
 
     @property
     def clipset(self):
@@ -153,24 +153,24 @@ def run_samples(table: str, *, scale: str = "quick", dataset: str | None = None,
                 run: str | Path | None = None) -> RunSamples:
     """The samples behind a run of ``table`` (the newest finished plain run at ``scale`` by
     default; ``run``: an id, a prefix or a folder).  ConfigError when there is no run."""
-    from repro.engine.runner import _scale, _spec, table_run
+    from repro.engine.runner import table_run, table_scale, table_spec
     from repro.engine.tables import build_plan
     from repro.store.runs import read_run_json
 
-    spec = _spec(table)
+    spec = table_spec(table)
     path = table_run(spec, scale, dataset, run)
     if path is None:
         from repro.engine.footer import no_run_message
         from repro.engine.runner import newest_failure
 
-        sc = _scale(scale, dataset)
+        sc = table_scale(scale, dataset)
         failed = newest_failure(spec.id, sc.name, dataset or sc.dataset_for(spec))
         raise ConfigError(no_run_message(spec.id, sc.name, dataset, failed))
     rj = read_run_json(path)
     if rj.get("table") != spec.id:
         raise ConfigError(f"run {path.name} is of {rj.get('table')!r}, not {spec.id!r}")
     cfg = rj.get("config") or {}
-    sc = _scale(rj.get("scale") or scale, rj.get("dataset"))
+    sc = table_scale(rj.get("scale") or scale, rj.get("dataset"))
     plan = build_plan(spec, sc, rj.get("dataset"), tuple(cfg.get("seeds") or ()) or None,
                       bool(cfg.get("retrain")), float(cfg.get("budget", 1.0)),
                       int(cfg.get("evaluator_seed", 0)))

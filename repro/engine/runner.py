@@ -41,7 +41,7 @@ def claiming_ids(allow: bool):
         _CLAIM_IDS.reset(token)
 
 
-def _spec(name: str):
+def table_spec(name: str):
     """The spec ``name`` names; a spec file outside ``tables/`` may not claim the id of a
     registered table (its runs would become that table's newest run) unless
     :func:`claiming_ids` allows it."""
@@ -60,7 +60,9 @@ def _spec(name: str):
     return spec
 
 
-def _scale(name: str, dataset: str | None):
+def table_scale(name: str, dataset: str | None):
+    """The scale profile ``name`` resolved for ``dataset`` (``--dataset``; None: the
+    profile's own), :func:`repro.specs.scales.resolve_scale`."""
     from repro.specs.scales import resolve_scale
 
     return resolve_scale(name, dataset)
@@ -213,8 +215,8 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
         from repro.engine.progress import LineProgressHook
 
         hook, progress = LineProgressHook(), False
-    sc = _scale(scale, dataset)
-    specs = list({s.id: s for s in (_spec(n) for n in names)}.values())
+    sc = table_scale(scale, dataset)
+    specs = list({s.id: s for s in (table_spec(n) for n in names)}.values())
     plans = [build_plan(spec, sc, dataset, seeds, retrain, budget, evaluator_seed)
              for spec in specs]
     from repro.engine.split_check import check_protocol_splits
@@ -430,19 +432,20 @@ def table_run(spec, scale: str = "quick", dataset: str | None = None,
     if run is not None:
         return Path(run) if isinstance(run, Path) or Path(str(run)).is_dir() else \
             resolve_run(str(run))
-    sc = _scale(scale, dataset)
+    sc = table_scale(scale, dataset)
     return latest_run(spec.id, sc.name, dataset or sc.dataset_for(spec))
 
 
 def table_view(name: str, *, scale: str = "quick", dataset: str | None = None, run: str | None = None):
     """The view of a table: from a run (the newest finished one by default) or, when there is
     none, the paper's values beside "not run" cells."""
-    from repro.engine.tables import build_plan, make_view, unbuilt_columns
+    from repro.engine.table_view import make_view
+    from repro.engine.tables import build_plan, unbuilt_columns
 
     from repro.engine.footer import failure_line, gate_mark
 
-    spec = _spec(name)
-    sc = _scale(scale, dataset)
+    spec = table_spec(name)
+    sc = table_scale(scale, dataset)
     path = table_run(spec, scale, dataset, run or None)
     # the newest run, when it did not finish, is said (issue 28: "not run yet" after two
     # FAILED runs); a run asked for by id is shown as asked
@@ -515,8 +518,8 @@ def plan_table(name: str, *, scale: str = "quick", dataset: str | None = None, w
     from repro.engine.plan import plan as plan_jobs
     from repro.engine.tables import build_plan
 
-    spec = _spec(name)
-    plan = build_plan(spec, _scale(scale, dataset), dataset, seeds, retrain)
+    spec = table_spec(name)
+    plan = build_plan(spec, table_scale(scale, dataset), dataset, seeds, retrain)
     from repro.engine.split_check import check_protocol_splits
 
     check_protocol_splits(plan)
@@ -547,8 +550,8 @@ def verify_table(name: str, baseline_dir: str | Path, *, scale: str = "quick",
                                         load_baseline, refusal)
     from repro.store.runs import read_run_json, read_summary
 
-    spec = _spec(name)
-    sc = _scale(scale, dataset)
+    spec = table_spec(name)
+    sc = table_scale(scale, dataset)
     ds = dataset or sc.dataset_for(spec)
     path = latest_run(spec.id, sc.name, ds, retrain=False)
     if tolerance is not None:  # the spread of training seeds: a --retrain run when there is one

@@ -21,6 +21,7 @@ jobs score with the evaluator on the CPU.
 from __future__ import annotations
 
 import json
+import math
 from functools import lru_cache
 
 GENERATED = "generated.npz"
@@ -39,7 +40,8 @@ def clipset(dataset: str):
     return load_clipset(dataset)
 
 
-def _protocol(cfg):
+def protocol_of(cfg):
+    """The protocol a step's config names (``protocol`` with its ``protocol_params``)."""
     from repro.eval.protocols import get_protocol
 
     return get_protocol(cfg["protocol"], cfg["protocol_params"])
@@ -61,40 +63,27 @@ def evaluator_for(cfg: dict, weights: bool = True):
     from repro.eval.provider import get_evaluator
 
     ev = cfg["evaluator"]
-    clips = evaluator_clipset(_protocol(cfg), clipset(cfg["dataset"]))
+    clips = evaluator_clipset(protocol_of(cfg), clipset(cfg["dataset"]))
     return get_evaluator(ev["dataset"], ev["kind"], ev["scale"], ev["seed"], clipset=clips,
                          heading=ev.get("heading"), overrides=ev.get("settings"),
                          weights=weights)
 
 
 def training_items(cfg: dict, clips, item_kind: str = "actions"):
-    """The items a method trains on: described by ``cfg["items"]``, so every protocol that
-    makes items the same way shares the trained model.  The description is a
-    :class:`repro.data.contexts.ItemSource` (Neural Marionette's single actions), or, with
-    ``builder = "multiact_pairs"``, a :class:`repro.data.pairs.PairSource` (MultiAct's
-    [S_p, T, S_c] samples); a method whose ``item_kind`` is ``"actions"`` (ACTOR) trains on the
-    pairs' current actions (:meth:`repro.data.pairs.PairItems.as_action_items`); with
-    ``builder = "odmo_windows"`` a :class:`repro.data.odmo_items.WindowItems` pool (ODMO's
-    windows; methods of ``item_kind`` ``"windows"``), or its fixed windows as actions (ACTOR,
-    Action2Motion in ODMO's tables)."""
-    desc = cfg["items"]
-    if isinstance(desc, dict) and desc.get("builder") == "odmo_windows":
-        from repro.data.odmo_items import WindowSource
+    """The items a method trains on: described by ``cfg["items"]`` (an item source's
+    ``describe()``, :mod:`repro.data.item_sources`), so every protocol that makes items the
+    same way shares the trained model; a method reads them as its ``item_kind`` asks
+    (:meth:`repro.data.item_sources.ItemSource.training_items`: e.g. ACTOR the current actions
+    of MultiAct's pairs, Action2Motion the fixed windows of ODMO's pool as actions)."""
+    from repro.data.item_families import source_from_description
 
-        pool = WindowSource.from_description(desc).train_items(clips)
-        return pool if item_kind == "windows" else pool.as_action_items()
-    if isinstance(desc, dict) and desc.get("builder") == "multiact_pairs":
-        from repro.data.pairs import PairSource
-
-        pairs = PairSource.from_description(desc).train_items(clips)
-        return pairs if item_kind == "pairs" else pairs.as_action_items()
-    from repro.data.contexts import ItemSource
-
-    return ItemSource.from_description(desc).train_items(clips)
+    return source_from_description(cfg["items"]).training_items(clips, item_kind)
 
 
-def _write_values(ctx, values: dict) -> None:
-    clean = {k: (None if v is None else float(v)) for k, v in values.items()}
+def write_values(ctx, values: dict) -> None:
+    # a non-finite value (e.g. multimodality with no within-class pair) is "not measured"
+    clean = {k: (None if v is None or not math.isfinite(float(v)) else float(v))
+             for k, v in values.items()}
     (ctx.out / VALUES).write_text(json.dumps({"schema": 1, "values": clean}, sort_keys=True))
 
 
@@ -161,7 +150,7 @@ def _replicate_inputs(ctx):
     items."""
     cfg = ctx.config
     ctx.seed_globals()
-    proto = _protocol(cfg)
+    proto = protocol_of(cfg)
     clips = clipset(cfg["dataset"])
     return cfg, proto, clips, proto.test_items(clips)
 
@@ -237,14 +226,14 @@ def measure(ctx) -> None:
         getattr(proto, "measure_uses_clipset", False)  # e.g. the harness columns' training bank
     extra = {"clipset": clips} if uses else {}
     values = proto.measure(generated, items, evaluator_for(cfg), seed=ctx.seed, **extra)
-    _write_values(ctx, values)
+    write_values(ctx, values)
 
 
 def measure_real(ctx) -> None:
     cfg, proto, clips, items = _replicate_inputs(ctx)
     values = proto.real_replicate(clips, items, evaluator_for(cfg), seed=ctx.seed,
                                   replicate=cfg["replicate"], **(cfg.get("real") or {}))
-    _write_values(ctx, values)
+    write_values(ctx, values)
 
 
 def read_values(obj) -> dict[str, float | None]:

@@ -134,9 +134,9 @@ def build_record(axis: str, runs: list[tuple[Any, Any, dict, str]]) -> dict:
 
 
 def _text(spec, cl) -> str:
-    from repro.engine.tables import _claim_text
+    from repro.engine.table_view import claim_text
 
-    return _claim_text(spec, cl)
+    return claim_text(spec, cl)
 
 
 def write_record(record: dict) -> Path:

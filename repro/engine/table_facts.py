@@ -21,14 +21,14 @@ def real_rows_stored(e: dict, evaluator_key: str, ev, clips, load=None, stored=N
     it was found (a run record counts what it read and wrote)."""
     from repro.engine.source_hash import source_hash
     from repro.eval import real_rows
-    from repro.eval.real import _bootstrap_resamples
+    from repro.eval.real import bootstrap_resamples
     from repro.keys import content_key
     from repro.store.objects import Store
 
     key = content_key({"schema": 1, "object": "real_rows", "evaluator": evaluator_key,
                        "clips": clips.fingerprint, "kind": e["kind"], "dataset": e["dataset"],
                        "scale": e["scale"], "settings": ev.settings.model_dump(mode="json"),
-                       "bootstrap_resamples": _bootstrap_resamples(e["scale"]),
+                       "bootstrap_resamples": bootstrap_resamples(e["scale"]),
                        "source": source_hash("repro.eval.real")})
 
     def compute(out: Path) -> None:

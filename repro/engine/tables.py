@@ -1,4 +1,5 @@
-"""A table's job graph, its run, the aggregation of raw replicate values and the report view.
+"""A table's job graph, its run and the aggregation of raw replicate values (the report view is
+:mod:`repro.engine.table_view`).
 
 Data flow (DESIGN.md): spec + scale profile + data set → bands of columns that share a
 protocol → per row: ``train`` (one model per row, training seed = the profile's first seed) →
@@ -40,8 +41,7 @@ from functools import partial
 from typing import Any
 
 from repro.engine.job import Job
-from repro.report.view import (DATA_UNAVAILABLE, NOT_IMPLEMENTED, NOT_RUN, OK,
-                               CellView, ClaimView, RowView, TableView)
+from repro.report.view import DATA_UNAVAILABLE, NOT_IMPLEMENTED, OK
 
 STEPS = "repro.engine.steps"
 SUMMARY_SCHEMA = 1
@@ -509,7 +509,7 @@ def with_evidence(plan: TablePlan, cl, claim: dict, budgets: dict) -> dict:
     evs = []
     for b in plan.bands:
         if b.implemented and set(b.columns) & set(cl.column):
-            t = evaluator_text(b.evaluator)
+            t = evaluator_text(b.evaluator, getattr(plan, "dataset", None))
             if t and t not in evs:
                 evs.append(t)
     ev = claim_evidence(rows=list(cl.involved_rows()), budgets=budgets, retrain=plan.retrain,
@@ -529,6 +529,7 @@ def _claim(spec, cl, cells, values: list[dict] | None = None) -> dict:
     """One claim's verdict from the cells (``(row, column) -> replicate values``); a figure's
     claims read its per-x cells (:func:`repro.engine.figures.figure_claim`), with the raw
     ``values`` pairing replicates for the slopes of a trend along x."""
+    from repro.engine.comparisons import conjunction, pairs_on
     from repro.engine.figures import figure_claim, is_figure
 
     if is_figure(spec):
@@ -545,206 +546,8 @@ def _claim(spec, cl, cells, values: list[dict] | None = None) -> dict:
                 "reason": "a trend along x needs a figure (a table has no x axis)"}
     pairs = []  # (probability, verdict, reason)
     for col in cl.column:
-        got = _pairs_on(spec, cl, col, col, cells)
+        got = pairs_on(spec, cl, col, col, cells)
         if isinstance(got, str):
             return {**base, "verdict": "not evaluated", "probability": None, "reason": got}
         pairs.extend(got)
-    return _conjunction(base, pairs)
-
-
-def _pairs_on(spec, cl, col: str, key: str, cells, seed: int = 0):
-    """The pairwise comparisons of an order / gap / trend-along-rows claim on column ``col``,
-    read from the cells ``(row, key)`` (``key`` = ``col`` on a table, ``"col@x"`` on a figure):
-    a list of (probability, verdict, reason), or a str saying why it cannot be evaluated."""
-    from repro.stats.claims import claim_probability
-    from repro.stats.claims import verdict as vd
-
-    column = spec.column(col)
-    direction = cl.direction or column.direction
-
-    def vals(row_id):
-        v = cells[(row_id, key)]
-        if direction == "closer_to_real":
-            ref = spec.reference_row(col)
-            if ref is None or (ref, key) not in cells:
-                return None
-            m = sum(cells[(ref, key)]) / len(cells[(ref, key)])
-            return [abs(x - m) for x in v]
-        return v
-
-    d = "lower" if direction in ("lower", "closer_to_real", "decreasing") else "higher"
-    if cl.kind == "order":
-        comps = [(cl.better, other) for other in cl.than]
-    elif cl.kind == "gap":
-        comps = [(cl.a, cl.b)]
-    else:  # trend along rows: consecutive rows follow the direction
-        comps = list(zip(cl.rows[1:], cl.rows[:-1]))
-    within = (cl.kind == "gap" and cl.bound == "within") or \
-        (cl.kind == "trend" and direction == "stable")  # stable: consecutive rows within δ
-    pairs = []
-    for a, b in comps:
-        va, vb = vals(a), vals(b)
-        if va is None or vb is None:
-            return f"no reference row for closer-to-real column {col!r}"
-        delta = float(cl.delta or 0.0)
-        tag = (lambda r: None if r is None else f"{key}: {r}")  # say which column it is about
-        if within:
-            hi = claim_probability(va, vb, "higher", delta, seed=seed)
-            lo = claim_probability(va, vb, "lower", delta, seed=seed)
-            if hi.decided_by == "values":  # no spread: within iff neither side is ahead by δ
-                holds = hi.verdict != "supported" and lo.verdict != "supported"
-                pairs.append((math.nan, "supported" if holds else "contradicted",
-                              tag(hi.reason)))
-                continue
-            if hi.reason or lo.reason:  # a chain that did not mix (or no spread to learn)
-                pairs.append((math.nan, "inconclusive", tag(hi.reason or lo.reason)))
-                continue
-            p = 1.0 - hi.probability - lo.probability
-            pairs.append((p, vd(p), None))
-        else:
-            res = claim_probability(va, vb, d, delta if cl.kind == "gap" else 0.0, seed=seed)
-            # a chain that did not mix shows no P (its P is not evidence)
-            p = math.nan if res.verdict == "inconclusive" and res.reason else res.probability
-            pairs.append((p, res.verdict, tag(res.reason)))
-    return pairs
-
-
-def _conjunction(base: dict, pairs: list, lead: str | None = None, notes=()) -> dict:
-    """The verdict of a conjunction of comparisons (probability, verdict, reason): supported
-    when every one is, contradicted when any is, else inconclusive; P = the smallest P (an
-    upper bound on the joint probability).  ``lead`` (what decided it: the x present, the
-    replicates) opens the reason, then ``notes`` and the comparisons' own reasons."""
-    ps = [p for p, _, _ in pairs]
-    verdicts = [v for _, v, _ in pairs]
-    if "contradicted" in verdicts:
-        verdict = "contradicted"
-    elif all(v == "supported" for v in verdicts):
-        verdict = "supported"
-    else:
-        verdict = "inconclusive"
-    finite = [p for p in ps if p is not None and math.isfinite(p)]
-    # a comparison that could not be evaluated (a chain that did not mix, a single replicate)
-    # leaves the joint probability unknown: no P for the conjunction
-    unknown = any(v == "inconclusive" and (p is None or not math.isfinite(p)) for p, v, _ in pairs)
-    reasons = sorted({r for _, _, r in pairs if r} | set(notes))
-    reason = "; ".join(([lead] if lead else []) + reasons) or None
-    return {**base, "verdict": verdict,
-            "probability": min(finite) if finite and not unknown else None,
-            "pairwise": ps, "reason": reason}
-
-
-# ---------------------------------------------------------------------------------------------
-# the view
-
-
-def _claim_text(spec, cl) -> str:
-    cols = ", ".join(cl.column)
-    if cl.x_range is not None:  # figures only
-        cols += f" at x {cl.x_range[0]}..{cl.x_range[1]}"
-    elif cl.along == "x" and getattr(spec, "x", None) is not None:
-        cols += f" along x {spec.x.start}..{spec.x.stop}"
-    elif getattr(spec, "kind", "table") == "figure" and getattr(spec, "x", None) is not None:
-        cols += " at every x"
-    if cl.kind == "order":
-        return f"{cl.better} better than {', '.join(cl.than)} on {cols}"
-    if cl.kind == "gap":
-        rel = "within" if cl.bound == "within" else "ahead by at least"
-        return f"{cl.a} vs {cl.b} on {cols}: {rel} {cl.delta}"
-    if cl.direction == "stable" and cl.delta is not None:
-        return f"{', '.join(cl.rows)}: stable within {cl.delta} on {cols}"
-    return f"{', '.join(cl.rows)}: {cl.direction} on {cols}"
-
-
-def make_view(spec, plan_rows: dict[str, dict], summary: dict | None, footer: list[str],
-              dataset: str | None, unbuilt: dict[str, str] | None = None) -> TableView:
-    """The reported-vs-reproduced view from a spec and (optionally) a run's summary;
-    ``unbuilt`` names the columns whose protocol is not built (they read "not implemented").
-    A figure's view has its per-x cells (:func:`repro.engine.figures.figure_view`)."""
-    from repro.engine.figures import column_views, figure_view, is_figure
-
-    cells = (summary or {}).get("cells", {})
-    unbuilt = (summary or {}).get("unbuilt_columns", {}) if unbuilt is None else unbuilt
-    test_sets = (summary or {}).get("test_sets")  # recorded by the run (table_facts.test_sets_stored)
-    if is_figure(spec):
-        fig = figure_view(spec, plan_rows, summary, footer, _standin(dataset),
-                          _paper_title(spec), unbuilt, _claim_views(spec, summary))
-        fig.test_sets = test_sets
-        return fig
-    cols = column_views(spec)
-    rows = []
-    for row in spec.rows:
-        st = plan_rows.get(row.id, {}).get("status", NOT_RUN)
-        reason = plan_rows.get(row.id, {}).get("reason")
-        rv = RowView(row.id, row.label, row.method, st, note=reason)
-        for c in spec.columns:
-            rep = row.reported.get(c.id)
-            printed = rep.printed if rep is not None else None
-            if getattr(c, "harness", False):
-                printed = "not in paper"
-            elif rep is not None and getattr(rep, "certain", True) is False:
-                printed = f"{printed}?"  # the spec marks the extraction uncertain (its note says why)
-            got = cells.get(row.id, {}).get(c.id)
-            if got is not None:
-                ci = got.get("bootstrap_percentile")
-                rv.cells[c.id] = CellView(printed, got["mean"], got.get("paper_halfwidth"),
-                                          tuple(ci) if ci and None not in ci else None,
-                                          got["n"], OK)
-            else:
-                if st != OK and st != NOT_RUN:
-                    cst = st
-                elif c.id in unbuilt:
-                    cst = NOT_IMPLEMENTED
-                else:
-                    cst = "not measured" if summary else NOT_RUN
-                rv.cells[c.id] = CellView(printed, status=cst)
-        rows.append(rv)
-    uncertain = [f"{row.id}/{cid}" for row in spec.rows for cid, rep in row.reported.items()
-                 if getattr(rep, "certain", True) is False]
-    if uncertain:
-        footer = list(footer) + [f"Paper cells marked '?' ({', '.join(uncertain)}) are uncertain "
-                                 "in the PDF extraction (the spec's note says why); never used."]
-    return TableView(spec.id, spec.title, _paper_title(spec), cols, rows,
-                     _claim_views(spec, summary), footer, _standin(dataset), spec.interval,
-                     test_sets=test_sets)
-
-
-def _claim_views(spec, summary: dict | None) -> list[ClaimView]:
-    claims = []
-    by_id = {c["id"]: c for c in (summary or {}).get("claims", [])}
-    for cl in spec.claims:
-        got = by_id.get(cl.id)
-        claims.append(ClaimView(cl.id, _claim_text(spec, cl), cl.source,
-                                None if got is None else got.get("probability"),
-                                "not evaluated" if got is None else got["verdict"],
-                                None if got is None else got.get("reason"),
-                                None if got is None else _evidence_text(got)))
-    return claims
-
-
-#: what a claim of a run recorded before verdicts carried their evidence says instead
-NO_EVIDENCE = ("not recorded: a run made before verdicts carried their evidence (budget far "
-               "below the paper's unless its footer says otherwise); rerun to get it")
-
-
-def _evidence_text(claim: dict) -> str | None:
-    if claim.get("verdict") == "not evaluated":
-        return None
-    ev = claim.get("evidence")
-    return ev.get("text") if ev else NO_EVIDENCE
-
-
-def _standin(dataset: str | None) -> str | None:
-    from repro.specs import names
-
-    if dataset is None:
-        return None
-    info = names.DATASETS.get(dataset)
-    # a declared data set (repro.data.dataset_spec) is never a paper's: a stand-in too
-    return dataset if info is None or info.standin else None
-
-
-def _paper_title(spec) -> str:
-    from repro.specs import names
-
-    return names.PAPERS[spec.paper.key].title if hasattr(
-        names, "PAPERS") and spec.paper.key in names.PAPERS else spec.paper.title
+    return conjunction(base, pairs)

@@ -46,7 +46,7 @@ def _summary(values: list[float], method: str, bootstrap: str, n_boot: int, seed
             "ci": [float(lo), float(hi)], "ci_method": bootstrap}
 
 
-def _bootstrap_resamples(scale: str) -> int:
+def bootstrap_resamples(scale: str) -> int:
     """The profile's ``bootstrap_resamples`` (1,000 when there is no scales.toml)."""
     from repro.specs.scales import resolve_scale, scales_path
 
@@ -119,7 +119,7 @@ def real_rows(dataset: str, scale: str = "medium", replicates: int | None = None
                             f"{missing}); drop them ([labels] classes in the data set's spec) "
                             "or give them more clips")
     per_rep = [real_replicate(evaluator, clipset, rs.per_class, seed, r) for r in range(reps)]
-    n_boot = _bootstrap_resamples(scale)
+    n_boot = bootstrap_resamples(scale)
     metrics = {m: _summary([p[m] for p in per_rep], rs.ci_method, rs.bootstrap, n_boot,
                            derive_seed(seed, "bootstrap", m))
                for m in METRICS}

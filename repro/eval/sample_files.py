@@ -65,7 +65,7 @@ def load_samples(path: str | Path, *, protocol: str, fmt: int) -> tuple[dict, di
 
 def motion_set(data: dict, meta: dict, skeleton, path, prefix: str = ""):
     """The GeneratedItems stored under ``prefix`` (shapes checked)."""
-    from repro.models.items import GeneratedItems
+    from repro.data.action_items import GeneratedItems
     from repro.motion.motion import Motion
 
     try:

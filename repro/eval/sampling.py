@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from repro.data.clip_draws import balanced_clips, per_class_clips
 from repro.data.clipset import ClipSet
 from repro.data.windows import cut_windows, odmo_windows
 
@@ -28,24 +29,12 @@ def _out(batch) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return batch.joints, batch.valid.astype(np.int64), batch.labels.astype(np.int64)
 
 
-def balanced_clips(clipset: ClipSet, pool: np.ndarray, n: int, rng: np.random.Generator,
-                   *, class_balanced: bool = True) -> np.ndarray:
-    """``n`` clip indices drawn with replacement from ``pool``: every class present equally
-    likely, then a clip of it uniformly (``class_balanced``), else clips uniformly."""
-    pool = np.asarray(pool, dtype=np.int64)
-    if not class_balanced:
-        return pool[rng.integers(0, pool.size, size=n)]
-    labels = clipset.labels[pool]
-    classes, counts = np.unique(labels, return_counts=True)
-    w = 1.0 / counts[np.searchsorted(classes, labels)]
-    return pool[rng.choice(pool.size, size=n, replace=True, p=w / w.sum())]
-
-
 def random_windows(clipset: ClipSet, pool: np.ndarray, n: int, window: int, rng: np.random.Generator,
                    *, class_balanced: bool = True, include_last: bool = False
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``n`` random windows (joints (n, T, J, 3) re-centred, valid lengths, labels)."""
-    clips = balanced_clips(clipset, pool, n, rng, class_balanced=class_balanced)
+    clips = balanced_clips(clipset, pool, n, rng,
+                           recipe="weights" if class_balanced else "uniform")
     return _out(odmo_windows(clipset, clips, window, rng, include_last=include_last))
 
 
@@ -57,17 +46,6 @@ def per_class_windows(clipset: ClipSet, pool: np.ndarray, per_class: int, window
     reference sets, protocols.md §3.2)."""
     clips = per_class_clips(clipset, pool, per_class, rng)
     return _out(odmo_windows(clipset, clips, window, rng, include_last=include_last))
-
-
-def per_class_clips(clipset: ClipSet, pool, per_class: int, rng: np.random.Generator) -> np.ndarray:
-    """``per_class`` clip rows of every class present in ``pool``, drawn uniformly with
-    replacement within the class, classes in index order (the clips of ODMO's real sets)."""
-    pool = np.asarray(pool, dtype=np.int64)
-    clips = []
-    for c in np.unique(clipset.labels[pool]):
-        members = pool[clipset.labels[pool] == c]
-        clips.append(members[rng.integers(0, members.size, size=per_class)])
-    return np.concatenate(clips)
 
 
 def tiling_windows(clipset: ClipSet, pool: np.ndarray, window: int, stride: int

@@ -55,7 +55,15 @@ def diversity(feats, n_pairs: int = DIVERSITY_PAIRS, seed=0) -> float:
 
 def multimodality(feats, labels, n_classes: int, per_class: int = MULTIMODALITY_PAIRS_PER_CLASS,
                   seed=0, early_break: bool = False) -> float:
-    """Within-class distance: ``per_class`` same-label pairs per class, sum / (per_class·C)."""
+    """Within-class distance: ``per_class`` same-label pairs per class, sum / (per_class·C).
+
+    Pairs are drawn with replacement, as the released code draws them (ACTOR, Action2Motion).
+    A class with a single sample has no within-class pair: the released code's quota loop
+    then pairs the sample with itself and the class adds exactly 0.  The harness departs from
+    that on purpose (a guard, not a reading: it changes no number where every class has two
+    samples): when any class that has samples has only one (own data with one test clip per
+    class) the value is NaN, which a table shows as "not measured", rather than a mean pulled
+    towards 0 that claims would be decided on (docs/metrics.md, "Multimodality")."""
     f = float_array(feats, "features", ndim=2, min_len=1)
     y = int_array(labels, "labels", n=f.shape[0])
     check_classes(y, n_classes, "labels")
@@ -66,6 +74,8 @@ def multimodality(feats, labels, n_classes: int, per_class: int = MULTIMODALITY_
     if absent.size and not early_break:
         raise DataError(f"multimodality: classes {absent.tolist()} have no samples (the reference "
                         "quota loop never ends); pass early_break=True for MultiAct's variant")
+    if (counts == 1).any():
+        return float("nan")
     rng = _rng(seed, "multimodality")
     order = np.argsort(y, kind="stable")
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])

@@ -84,11 +84,11 @@ import torch.nn.functional as F
 from pydantic import model_validator
 from torch import nn
 
+from repro.data.action_items import ActionItems, GeneratedItems, pad_last
 from repro.errors import ConfigError
 from repro.models.base import Generator, GeneratorConfig, register
 from repro.models.baseline_io import (check_items, item_noise, length_mask, pack_poses,
                                       pose_joints, to_generated, unpack_poses)
-from repro.models.items import ActionItems, GeneratedItems, pad_last
 from repro.motion.rotations import (axis_angle_to_matrix, matrix_to_6d, matrix_to_axis_angle,
                                     sixd_to_matrix)
 from repro.seeding import derive_seed
@@ -130,50 +130,54 @@ class A2MConfig(GeneratorConfig):
         return self
 
 
-class GaussianGRU(nn.Module):
-    """FC embedding → stacked GRU cells → (μ, log σ²) heads (A2M's prior/posterior networks)."""
+class StackedGRU(nn.Module):
+    """FC embedding → stacked GRU cells, the trunk of A2M's networks (a subclass adds its heads
+    after this ``__init__``, so the parameters are made embedding, cells, heads)."""
 
-    def __init__(self, n_in: int, n_out: int, hidden: int, layers: int):
+    def __init__(self, n_in: int, hidden: int, layers: int):
         super().__init__()
         self.embed = nn.Linear(n_in, hidden)
         self.cells = nn.ModuleList(nn.GRUCell(hidden, hidden) for _ in range(layers))
-        self.mu = nn.Linear(hidden, n_out)
-        self.logvar = nn.Linear(hidden, n_out)
 
     def init_hidden(self, B: int, like: torch.Tensor) -> list[torch.Tensor]:
         return [like.new_zeros(B, c.hidden_size) for c in self.cells]
 
-    def forward(self, x, hidden):
+    def trunk(self, x, hidden):
+        """(last cell's output, every cell's new hidden state)."""
         h = self.embed(x)
         new = []
         for cell, hc in zip(self.cells, hidden):
             h = cell(h, hc)
             new.append(h)
+        return h, new
+
+
+class GaussianGRU(StackedGRU):
+    """FC embedding → stacked GRU cells → (μ, log σ²) heads (A2M's prior/posterior networks)."""
+
+    def __init__(self, n_in: int, n_out: int, hidden: int, layers: int):
+        super().__init__(n_in, hidden, layers)
+        self.mu = nn.Linear(hidden, n_out)
+        self.logvar = nn.Linear(hidden, n_out)
+
+    def forward(self, x, hidden):
+        h, new = self.trunk(x, hidden)
         return self.mu(h), self.logvar(h), new
 
 
-class DecoderGRU(nn.Module):
+class DecoderGRU(StackedGRU):
     """FC embedding → stacked GRU cells → pose parameters (A2M's generator).  With ``lie`` the
     head is ``DecoderGRULie``'s: root linear, rotations ``π·tanh(FC(tanh(h)))``."""
 
     def __init__(self, n_in: int, n_out: int, hidden: int, layers: int, lie: bool):
-        super().__init__()
-        self.embed = nn.Linear(n_in, hidden)
-        self.cells = nn.ModuleList(nn.GRUCell(hidden, hidden) for _ in range(layers))
+        super().__init__(n_in, hidden, layers)
         self.out = nn.Linear(hidden, n_out)
         self.lie = lie
         if lie:
             self.out_lie = nn.Linear(n_out - 3, n_out - 3)
 
-    def init_hidden(self, B: int, like: torch.Tensor) -> list[torch.Tensor]:
-        return [like.new_zeros(B, c.hidden_size) for c in self.cells]
-
     def forward(self, x, hidden):
-        h = self.embed(x)
-        new = []
-        for cell, hc in zip(self.cells, hidden):
-            h = cell(h, hc)
-            new.append(h)
+        h, new = self.trunk(x, hidden)
         y = self.out(h)
         if self.lie:
             rot = math.pi * torch.tanh(self.out_lie(torch.tanh(y[..., :-3])))
@@ -356,17 +360,12 @@ class A2M(Generator):
         """Adam (lr 2e-4, weight decay 1e-5), batch 128, through the one training loop; weights
         initialised from ``seed``.  ``val_items``: the same loss terms on held-out items enter
         each epoch's history (``val_*``)."""
-        check_items(self, train_items)
-        if val_items is not None:
-            check_items(self, val_items)
         cfg = self.config
-        self._build(derive_seed(seed, self.method_id, "init"))
-        data = self._tensors(train_items)
-        opt = kernels.adam(self.net.parameters(), lr=cfg.lr, betas=(0.9, 0.999),
-                               weight_decay=cfg.weight_decay)
-        val_data = None if val_items is None else self._tensors(val_items)
-        return self._fit_batches(train_items, data, opt, seed=seed, ckpt_dir=ckpt_dir,
-                                 on_epoch=on_epoch, val_items=val_items, val_data=val_data)
+        return self._fit_items(
+            train_items, check_items,
+            lambda params: kernels.adam(params, lr=cfg.lr, betas=(0.9, 0.999),
+                                        weight_decay=cfg.weight_decay),
+            seed=seed, ckpt_dir=ckpt_dir, on_epoch=on_epoch, val_items=val_items)
 
     # -- inference -----------------------------------------------------------------------------
     @torch.no_grad()

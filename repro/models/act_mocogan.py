@@ -93,9 +93,9 @@ import torch.nn.functional as F
 from pydantic import model_validator
 from torch import nn
 
-from repro.errors import ConfigError, DataError
+from repro.errors import ConfigError
 from repro.models.base import Generator, GeneratorConfig, epoch_batches, register
-from repro.models.baseline_io import item_noise
+from repro.models.baseline_io import check_matches_model, item_noise
 from repro.seeding import derive_seed, numpy_rng
 from repro.train.loop import to_device
 from repro import kernels
@@ -338,15 +338,9 @@ class ActMoCoGAN(Generator):
         if not isinstance(items, WindowItems):
             raise TypeError(f"{who} trains on repro.data.odmo_items.WindowItems ({what}), "
                             f"got {type(items).__name__}")
-        if len(items) == 0:
-            raise DataError(f"{who}: no {what} clips")
-        if items.n_joints != self.n_joints:
-            raise DataError(f"{who}: {what} have {items.n_joints} joints, the model {self.n_joints}")
-        if items.n_classes != self.n_classes:
-            raise ConfigError(f"{who}: {what} have {items.n_classes} classes, "
-                              f"the model {self.n_classes}")
-        if abs(items.fps - self.fps) > 1e-6:
-            raise DataError(f"{who}: {what} are at {items.fps} fps, the model at {self.fps}")
+        check_matches_model(who, items, what, empty=f"no {what} clips")
+        check_matches_model(who, items, what, n_joints=self.n_joints, n_classes=self.n_classes,
+                            fps=self.fps)
 
     @staticmethod
     def _window_tensors(wb) -> dict[str, torch.Tensor]:

@@ -50,10 +50,10 @@ import torch.nn.functional as F
 from pydantic import model_validator
 from torch import nn
 
+from repro.data.action_items import ActionItems, GeneratedItems
 from repro.models.base import Generator, GeneratorConfig, register
 from repro.models.baseline_io import (check_items, item_noise, length_mask, pack_poses,
                                       pose_dim, pose_joints, to_generated)
-from repro.models.items import ActionItems, GeneratedItems
 from repro.models.layers import TransformerDecoder, TransformerEncoder, sinusoidal_encoding
 from repro.seeding import derive_seed
 from repro.train.loop import to_device
@@ -191,16 +191,11 @@ class ACTOR(Generator):
         """AdamW (lr 1e-4), batch 20, through the one training loop; weights from ``seed``.
         ``val_items``: the same loss terms on held-out items enter each epoch's history
         (``val_*``)."""
-        check_items(self, train_items)
-        if val_items is not None:
-            check_items(self, val_items)
         cfg = self.config
-        self._build(derive_seed(seed, self.method_id, "init"))
-        data = self._tensors(train_items)
-        opt = kernels.adamw(self.net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-        val_data = None if val_items is None else self._tensors(val_items)
-        return self._fit_batches(train_items, data, opt, seed=seed, ckpt_dir=ckpt_dir,
-                                 on_epoch=on_epoch, val_items=val_items, val_data=val_data)
+        return self._fit_items(
+            train_items, check_items,
+            lambda params: kernels.adamw(params, lr=cfg.lr, weight_decay=cfg.weight_decay),
+            seed=seed, ckpt_dir=ckpt_dir, on_epoch=on_epoch, val_items=val_items)
 
     # -- inference -----------------------------------------------------------------------------
     @torch.no_grad()

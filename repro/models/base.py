@@ -22,7 +22,7 @@ and four operations:
 
 Conditions differ per method: ACTOR and ODMO read only the label (and the duration); MarioNet,
 MANN and the adapted Action2Motion read label + initial motion + duration + next label +
-trajectory.  :class:`repro.models.items.ActionItems` carries all of them and each method reads
+trajectory.  :class:`repro.data.action_items.ActionItems` carries all of them and each method reads
 what it uses (declared in ``uses`` so protocols can say what a method saw).
 """
 
@@ -41,6 +41,7 @@ from repro.config_errors import resolve_config
 from repro.errors import ConfigError, DataError, MissingDataError
 from repro.keys import canonical_json, content_key
 from repro.motion.skeleton import Skeleton
+from repro.registries import add_to_registry
 
 CONFIG_FILE = "config.json"
 WEIGHTS_FILE = "weights.pt"
@@ -86,14 +87,7 @@ _REGISTRY: dict[str, type["Generator"]] = {}
 
 def register(cls: type["Generator"]) -> type["Generator"]:
     """Class decorator: make ``cls`` findable by :func:`generator_class`."""
-    mid = getattr(cls, "method_id", None)
-    if not isinstance(mid, str) or not mid:
-        raise TypeError(f"{cls.__name__} needs a non-empty str method_id")
-    other = _REGISTRY.get(mid)
-    if other is not None and other.__qualname__ != cls.__qualname__:
-        raise TypeError(f"method_id {mid!r} is taken by {other.__qualname__}")
-    _REGISTRY[mid] = cls
-    return cls
+    return add_to_registry(_REGISTRY, cls, "method_id", "method_id")
 
 
 def generator_class(method_id: str) -> type["Generator"]:
@@ -189,6 +183,23 @@ class Generator(abc.ABC):
             torch.manual_seed(init_seed)
             self.net = self._make_network()
         self.net.eval()
+
+    def _fit_items(self, train_items, check, make_optimizer, *, seed: int, ckpt_dir, on_epoch,
+                   val_items=None):
+        """The whole ``fit`` of a method with no extra step: ``check(self, items)`` on the
+        training (and validation) items, fresh weights from ``seed``, ``self._tensors`` of the
+        items, ``make_optimizer(parameters)``, then :meth:`_fit_batches`."""
+        from repro.seeding import derive_seed
+
+        check(self, train_items)
+        if val_items is not None:
+            check(self, val_items)
+        self._build(derive_seed(seed, self.method_id, "init"))
+        data = self._tensors(train_items)
+        opt = make_optimizer(self.net.parameters())
+        val_data = None if val_items is None else self._tensors(val_items)
+        return self._fit_batches(train_items, data, opt, seed=seed, ckpt_dir=ckpt_dir,
+                                 on_epoch=on_epoch, val_items=val_items, val_data=val_data)
 
     def _fit_batches(self, train_items, data: dict, optimizer, *, seed: int, ckpt_dir,
                      on_epoch, val_items=None, val_data: dict | None = None, **train_kwargs):

@@ -2,7 +2,7 @@
 vector, seeded noise and the way generated poses go back to the world.
 
 Neural Marionette (supp. Sec. 4.1) trains every baseline "on the same data" as MarioNet, so all
-three read :class:`repro.models.items.ActionItems` in each item's Marionette-normalised frame
+three read :class:`repro.data.action_items.ActionItems` in each item's Marionette-normalised frame
 (the last initial pose ``P₋₁`` at the origin facing +Z, Alg. 1) and return their motions through
 the same inverse (Eq. 5), :meth:`ActionItems.to_world`.
 
@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import torch
 
+from repro.data.action_items import ActionItems, GeneratedItems, pad_last
 from repro.errors import ConfigError, DataError
-from repro.models.items import ActionItems, GeneratedItems, pad_last
 from repro.motion.motion import Motion
 from repro.motion.rotations import matrix_to_6d, sixd_to_matrix
 from repro.motion.skeleton import forward_kinematics
@@ -54,20 +54,33 @@ def length_mask(lengths: torch.Tensor, T: int) -> torch.Tensor:
     return torch.arange(T, device=lengths.device)[None, :] < lengths[:, None]
 
 
+def check_matches_model(who: str, items, noun: str, *, skeleton=None, n_joints=None,
+                        n_classes=None, fps=None, empty: str | None = None) -> None:
+    """The checks every method makes of its training or condition items, in this order, each
+    only where its argument is given: the same ``skeleton`` (a DataError naming both
+    fingerprints), ``n_joints`` (DataError), ``n_classes`` (ConfigError) and ``fps`` (DataError)
+    as the model, then at least one item (DataError ``"{who}: {empty}"``).  ``noun`` names the
+    items in the messages (``items``, ``pairs``, ``windows``)."""
+    if skeleton is not None and items.skeleton != skeleton:
+        raise DataError(f"{who}: {noun} use a different skeleton "
+                        f"({items.skeleton.fingerprint()[:12]} vs {skeleton.fingerprint()[:12]})")
+    if n_joints is not None and items.n_joints != n_joints:
+        raise DataError(f"{who}: {noun} have {items.n_joints} joints, the model {n_joints}")
+    if n_classes is not None and items.n_classes != n_classes:
+        raise ConfigError(f"{who}: {noun} have {items.n_classes} classes, the model {n_classes}")
+    if fps is not None and abs(items.fps - fps) > 1e-6:
+        raise DataError(f"{who}: {noun} are at {items.fps} fps, the model at {fps}")
+    if empty is not None and len(items) == 0:
+        raise DataError(f"{who}: {empty}")
+
+
 def check_items(gen, items) -> None:
     """``items`` must be non-empty ActionItems on the generator's skeleton, classes and fps."""
     who = gen.method_id
     if not isinstance(items, ActionItems):
-        raise TypeError(f"{who} needs repro.models.items.ActionItems, got {type(items).__name__}")
-    if items.skeleton != gen.skeleton:
-        raise DataError(f"{who}: items use a different skeleton "
-                        f"({items.skeleton.fingerprint()[:12]} vs {gen.skeleton.fingerprint()[:12]})")
-    if items.n_classes != gen.n_classes:
-        raise ConfigError(f"{who}: items have {items.n_classes} classes, the model {gen.n_classes}")
-    if abs(items.fps - gen.fps) > 1e-6:
-        raise DataError(f"{who}: items are at {items.fps} fps, the model at {gen.fps}")
-    if len(items) == 0:
-        raise DataError(f"{who}: no items")
+        raise TypeError(f"{who} needs repro.data.action_items.ActionItems, got {type(items).__name__}")
+    check_matches_model(who, items, "items", skeleton=gen.skeleton, n_classes=gen.n_classes,
+                        fps=gen.fps, empty="no items")
 
 
 def item_noise(seed: int, method_id: str, shape: tuple[int, ...], *labels) -> torch.Tensor:

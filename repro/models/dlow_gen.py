@@ -106,9 +106,9 @@ import torch.nn.functional as F
 from pydantic import model_validator
 from torch import nn
 
-from repro.errors import ConfigError, DataError
+from repro.errors import ConfigError
 from repro.models.base import Generator, GeneratorConfig, register
-from repro.models.baseline_io import item_noise
+from repro.models.baseline_io import check_matches_model, item_noise
 from repro.seeding import derive_seed, numpy_rng
 from repro import kernels
 
@@ -306,7 +306,7 @@ class DLowGen(Generator):
     method_id = "dlow_gen"
     Config = DLowGenConfig
     item_kind = "windows"
-    uses = frozenset({"label", "length"})
+    # ``uses``: Generator's default, the label and the length
 
     def __init__(self, config, skeleton, n_classes: int, fps: float):
         super().__init__(config, skeleton, n_classes, fps)
@@ -328,16 +328,9 @@ class DLowGen(Generator):
         if not isinstance(items, WindowItems):
             raise TypeError(f"{who} trains on repro.data.odmo_items.WindowItems, "
                             f"got {type(items).__name__}")
-        if items.n_joints != self.skeleton.n_joints:
-            raise DataError(f"{who}: windows have {items.n_joints} joints, the model "
-                            f"{self.skeleton.n_joints}")
-        if items.n_classes != self.n_classes:
-            raise ConfigError(f"{who}: windows have {items.n_classes} classes, the model "
-                              f"{self.n_classes}")
-        if abs(items.fps - self.fps) > 1e-6:
-            raise DataError(f"{who}: windows are at {items.fps} fps, the model at {self.fps}")
-        if len(items) == 0:
-            raise DataError(f"{who}: no clips in the window pool")
+        check_matches_model(who, items, "windows", n_joints=self.skeleton.n_joints,
+                            n_classes=self.n_classes, fps=self.fps,
+                            empty="no clips in the window pool")
 
     @staticmethod
     def _batch_of(wb) -> dict[str, torch.Tensor]:

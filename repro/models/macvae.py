@@ -67,12 +67,12 @@ import torch
 import torch.nn.functional as F
 from pydantic import model_validator
 
+from repro.data.action_items import pad_last
 from repro.data.pairs import GeneratedPairs, PairItems
-from repro.errors import ConfigError, DataError
+from repro.errors import DataError
 from repro.models.base import Generator, GeneratorConfig, register
-from repro.models.baseline_io import (item_noise, length_mask, pack_poses, pose_joints,
-                                      unpack_poses)
-from repro.models.items import pad_last
+from repro.models.baseline_io import (check_matches_model, item_noise, length_mask, pack_poses,
+                                      pose_joints, unpack_poses)
 from repro.models.macvae_nets import MACVAENet, hold_frames, kl_gaussians, take_frames
 from repro.motion.canon import CanonParams, face_front, uncanonicalize, zero_canon
 from repro.motion.motion import Motion
@@ -197,13 +197,8 @@ class MACVAE(Generator):
             raise TypeError(f"{who} needs repro.data.pairs.PairItems, got {type(items).__name__}")
         if items.skeleton != self.skeleton:
             raise DataError(f"{who}: items use a different skeleton")
-        if items.n_classes != self.n_classes:
-            raise ConfigError(f"{who}: items have {items.n_classes} classes, the model "
-                              f"{self.n_classes}")
-        if abs(items.fps - self.fps) > 1e-6:
-            raise DataError(f"{who}: items are at {items.fps} fps, the model at {self.fps}")
-        if len(items) == 0:
-            raise DataError(f"{who}: no items")
+        check_matches_model(who, items, "items", n_classes=self.n_classes, fps=self.fps,
+                            empty="no items")
 
     # -- training ------------------------------------------------------------------------------
     def _tensors(self, items: PairItems) -> dict[str, torch.Tensor]:

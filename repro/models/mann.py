@@ -56,10 +56,10 @@ import torch.nn.functional as F
 from pydantic import model_validator
 from torch import nn
 
+from repro.data.action_items import ActionItems, GeneratedItems, pad_last
 from repro.models.base import Generator, GeneratorConfig, epoch_batches, register
 from repro.models.baseline_io import (check_items, pack_poses, pose_joints, to_generated,
                                       unpack_poses)
-from repro.models.items import ActionItems, GeneratedItems, pad_last
 from repro.motion.rotations import matrix_to_6d, sixd_to_matrix
 from repro.seeding import derive_seed
 from repro import kernels

@@ -34,7 +34,7 @@ next-tag token zeroed at training and test).
 
 Poses are ``J×6`` local 6D rotations followed by the root translation (``6J + 3``; 135 for
 SMPL's 22 joints, 129 for the stand-in's 21), in each item's Marionette-normalised frame
-(:mod:`repro.models.items`).  With ``standardize_poses`` (our choice; the paper is silent) the
+(:mod:`repro.data.action_items`).  With ``standardize_poses`` (our choice; the paper is silent) the
 pose FCs see z-scored features (training statistics, stored with the weights) while losses and
 outputs stay in physical units.  Every choice the paper leaves open is listed in
 docs/marionet.md.
@@ -50,12 +50,13 @@ import torch.nn.functional as F
 from pydantic import model_validator
 from torch import nn
 
-from repro.errors import ConfigError, DataError
+from repro.data.action_items import ActionItems, GeneratedItems, pad_last
 from repro.models.base import Generator, GeneratorConfig, register
-from repro.models.items import ActionItems, GeneratedItems, pad_last, local_joints
+from repro.models.baseline_io import check_items
 from repro.models.layers import TransformerDecoder, TransformerEncoder, sinusoidal_encoding
 from repro.motion.motion import Motion
 from repro.motion.rotations import matrix_to_6d, sixd_to_matrix
+from repro.motion.skeleton import forward_kinematics
 from repro.seeding import derive_seed, torch_generator
 from repro.train.loop import to_device
 from repro.train.schedules import linear_ramp
@@ -319,6 +320,13 @@ def _term(pred, target, mask, lengths, lambda_v: float) -> torch.Tensor:
     return (pos + lambda_v * vel).mean()
 
 
+def local_joints(skeleton, rotmats: torch.Tensor) -> torch.Tensor:
+    """Root-relative joint positions (..., J, 3) of Eq. 1a's joint term (FK with zero root
+    translation; the root's rotation is kept)."""
+    zero = torch.zeros(rotmats.shape[:-3] + (3,), dtype=rotmats.dtype, device=rotmats.device)
+    return forward_kinematics(skeleton, rotmats, zero)
+
+
 def reconstruction_loss(cfg: MarioNetConfig, skeleton, pred, target, target_joints, mask,
                         lengths) -> dict[str, torch.Tensor]:
     """Eq. 1a on poses (B, T, 6J+3); ``target_joints`` (B, T, J, 3) in ``cfg.joint_loss``'s
@@ -385,17 +393,8 @@ class MarioNet(Generator):
     # -- data --------------------------------------------------------------------------------
     def _check_items(self, items: ActionItems) -> None:
         if not isinstance(items, ActionItems):
-            raise TypeError("MarioNet needs repro.models.items.ActionItems")
-        if items.skeleton != self.skeleton:
-            raise DataError(f"{self.method_id}: items use a different skeleton "
-                            f"({items.skeleton.fingerprint()[:12]} vs {self.skeleton.fingerprint()[:12]})")
-        if items.n_classes != self.n_classes:
-            raise ConfigError(f"{self.method_id}: items have {items.n_classes} classes, the model "
-                              f"{self.n_classes}")
-        if abs(items.fps - self.fps) > 1e-6:
-            raise DataError(f"{self.method_id}: items are at {items.fps} fps, the model at {self.fps}")
-        if len(items) == 0:
-            raise DataError(f"{self.method_id}: no items")
+            raise TypeError("MarioNet needs repro.data.action_items.ActionItems")
+        check_items(self, items)
 
     def _tensors(self, items: ActionItems, with_targets: bool) -> dict[str, torch.Tensor]:
         out = {"init": pack_poses(items.initial).float(), "labels": items.labels,

@@ -15,7 +15,7 @@ and the lengths ``l_t``, ``l_c`` (:meth:`step`, :meth:`sample` on PairItems):
    - ``align=True`` ("w. align": "manually aligning ACTOR's action motions before performing
      in-betweening"): the action is placed at the last valid frame of ``S_p``, its position and
      heading, through the same inverse normalisation ACTOR uses for any item
-     (:func:`repro.models.items.condition_items` on the last ``n_init`` = 6 frames of ``S_p``,
+     (:func:`repro.data.action_items.condition_items` on the last ``n_init`` = 6 frames of ``S_p``,
      Marionette normalisation: forward heading axis, full 3-D translation).  ACTOR's canonical
      frame is the frame of the pose just before the action, so the action starts where ``S_p``
      ended, facing its way.
@@ -59,6 +59,7 @@ from typing import ClassVar
 import torch
 from torch import nn
 
+from repro.data.action_items import ItemsConfig, condition_items, pad_last
 from repro.data.pairs import GeneratedPairs, PairItems, last_frames
 from repro.errors import ConfigError, DataError, MissingDataError
 from repro.keys import canonical_json
@@ -71,7 +72,6 @@ from repro.models.base import (
     register,
 )
 from repro.models.baseline_io import unpack_poses
-from repro.models.items import ItemsConfig, condition_items, pad_last
 from repro.models.ssmct import interpolate_frames, join_pairs
 from repro.motion.motion import Motion
 from repro.motion.rotations import matrix_to_6d, sixd_to_matrix

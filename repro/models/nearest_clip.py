@@ -31,9 +31,10 @@ import torch
 from pydantic import Field
 from torch import nn
 
+from repro.data.action_items import ActionItems, GeneratedItems, pad_last
 from repro.errors import ConfigError, DataError
 from repro.models.base import Generator, GeneratorConfig, register
-from repro.models.items import ActionItems, GeneratedItems, pad_last
+from repro.models.baseline_io import check_matches_model
 from repro.motion.motion import Motion
 from repro.seeding import numpy_rng
 
@@ -108,16 +109,11 @@ class NearestClip(Generator):
 
     def _check_items(self, items: ActionItems) -> None:
         if not isinstance(items, ActionItems):
-            raise TypeError("nearest_clip needs repro.models.items.ActionItems")
+            raise TypeError("nearest_clip needs repro.data.action_items.ActionItems")
         if items.skeleton != self.skeleton:
             raise DataError("nearest_clip: items use a different skeleton than the model")
-        if items.n_classes != self.n_classes:
-            raise ConfigError(f"nearest_clip: items have {items.n_classes} classes, the model "
-                              f"{self.n_classes}")
-        if abs(items.fps - self.fps) > 1e-6:
-            raise DataError(f"nearest_clip: items are at {items.fps} fps, the model at {self.fps}")
-        if len(items) == 0:
-            raise DataError("nearest_clip: no items")
+        check_matches_model("nearest_clip", items, "items", n_classes=self.n_classes,
+                            fps=self.fps, empty="no items")
 
     def fit(self, train_items: ActionItems, *, seed: int, ckpt_dir: str | Path | None = None,
             on_epoch: Callable[[int, dict[str, float]], None] | None = None,

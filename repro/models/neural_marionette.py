@@ -28,7 +28,7 @@ Table 1's MarioNet; :meth:`NeuralMarionette.fit` does the same in-process).
 ``shadow_start``: ``"never"`` (plain MarioNet, bitwise), ``"always"`` (MarioNet+SS) or
 ``"on_revision"`` (with ``action_revision``: NEURAL MARIONETTE, or NEURAL MARIONETTE* without
 the L2 step).  :meth:`NeuralMarionette.sample` returns a :class:`RevisedItems` (a
-:class:`~repro.models.items.GeneratedItems` with ``revised`` and ``shadow_start`` masks).
+:class:`~repro.data.action_items.GeneratedItems` with ``revised`` and ``shadow_start`` masks).
 Every open choice is listed in docs/marionet.md ("NEURAL MARIONETTE: Shadow Start and Action
 Revision").
 """
@@ -43,9 +43,9 @@ import numpy as np
 import torch
 from pydantic import BaseModel, model_validator
 
+from repro.data.action_items import ActionItems, GeneratedItems
 from repro.errors import ConfigError, DataError
 from repro.models.base import register
-from repro.models.items import ActionItems, GeneratedItems
 from repro.models.marionet import MarioNet, MarioNetConfig, pack_poses
 from repro.seeding import derive_seed
 

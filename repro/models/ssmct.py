@@ -87,17 +87,18 @@ import torch.nn.functional as F
 from pydantic import model_validator
 from torch import nn
 
+from repro.data.action_items import pad_last
 from repro.data.pairs import GeneratedPairs, PairItems, gather_frames, last_frames
 from repro.errors import ConfigError, DataError
 from repro.models.base import Generator, GeneratorConfig, register
 from repro.models.baseline_io import (
+    check_matches_model,
     length_mask,
     pack_poses,
     pose_dim,
     pose_joints,
     unpack_poses,
 )
-from repro.models.items import pad_last
 from repro.models.layers import TransformerEncoder
 from repro.motion.canon import canonicalize_with, face_front, uncanonicalize
 from repro.motion.motion import Motion
@@ -246,13 +247,8 @@ def _check_pairs(gen, items) -> None:
     who = gen.method_id
     if not isinstance(items, PairItems):
         raise TypeError(f"{who} needs repro.data.pairs.PairItems, got {type(items).__name__}")
-    if items.skeleton != gen.skeleton:
-        raise DataError(f"{who}: pairs use a different skeleton "
-                        f"({items.skeleton.fingerprint()[:12]} vs {gen.skeleton.fingerprint()[:12]})")
-    if abs(items.fps - gen.fps) > 1e-6:
-        raise DataError(f"{who}: pairs are at {items.fps} fps, the model at {gen.fps}")
-    if len(items) == 0:
-        raise DataError(f"{who}: no pairs")
+    check_matches_model(who, items, "pairs", skeleton=gen.skeleton, fps=gen.fps,
+                        empty="no pairs")
 
 
 @register
@@ -333,16 +329,11 @@ class SSMCT(Generator):
             val_items: PairItems | None = None):
         """AdamW through the one training loop; weights from ``seed``; ``val_items`` give the
         ``val_*`` curve only."""
-        _check_pairs(self, train_items)
-        if val_items is not None:
-            _check_pairs(self, val_items)
         cfg = self.config
-        self._build(derive_seed(seed, self.method_id, "init"))
-        data = self._tensors(train_items)
-        opt = kernels.adamw(self.net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-        val_data = None if val_items is None else self._tensors(val_items)
-        return self._fit_batches(train_items, data, opt, seed=seed, ckpt_dir=ckpt_dir,
-                                 on_epoch=on_epoch, val_items=val_items, val_data=val_data)
+        return self._fit_items(
+            train_items, _check_pairs,
+            lambda params: kernels.adamw(params, lr=cfg.lr, weight_decay=cfg.weight_decay),
+            seed=seed, ckpt_dir=ckpt_dir, on_epoch=on_epoch, val_items=val_items)
 
     # -- inference -----------------------------------------------------------------------------
     @torch.no_grad()

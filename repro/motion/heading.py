@@ -42,7 +42,7 @@ from repro.motion.skeleton import Skeleton
 __all__ = [
     "BodyFrame", "body_frame", "body_forward", "chain_global_rotmat", "heading_angle",
     "body_heading", "motion_heading", "yaw_matrix", "rotate_about_y", "positions_heading",
-    "HEADING_AXES",
+    "ancestors", "HEADING_AXES",
 ]
 
 #: Axis name → reference world direction whose heading is 0 (a body facing +Z).
@@ -69,7 +69,7 @@ def _depth(skeleton: Skeleton, j: int) -> int:
     return d
 
 
-def _ancestors(skeleton: Skeleton, j: int) -> list[int]:
+def ancestors(skeleton: Skeleton, j: int) -> list[int]:
     """``j`` and its ancestors up to the root, nearest first."""
     out = [j]
     while skeleton.parents[j] != -1:
@@ -138,7 +138,7 @@ def _body_frame_cached(skeleton: Skeleton, left_hip, right_hip, up_joint) -> Bod
     if L is None or R is None:
         raise ValueError("body frame: cannot find the left/right hip joints by name in "
                          f"{list(skeleton.names)}; pass left_hip= and right_hip=")
-    anc_l, anc_r = _ancestors(skeleton, L), set(_ancestors(skeleton, R))
+    anc_l, anc_r = ancestors(skeleton, L), set(ancestors(skeleton, R))
     pelvis = next(j for j in anc_l if j in anc_r)
     if pelvis in (L, R):
         raise ValueError("body frame: one hip joint is an ancestor of the other")
@@ -146,9 +146,9 @@ def _body_frame_cached(skeleton: Skeleton, left_hip, right_hip, up_joint) -> Bod
         U = named(up_joint)
     else:
         legs = {j for j in range(skeleton.n_joints)
-                if {L, R} & set(_ancestors(skeleton, j)) or j in (L, R)}
+                if {L, R} & set(ancestors(skeleton, j)) or j in (L, R)}
         below = [j for j in range(skeleton.n_joints)
-                 if j != pelvis and pelvis in _ancestors(skeleton, j) and j not in legs]
+                 if j != pelvis and pelvis in ancestors(skeleton, j) and j not in legs]
         U = None
         for endings in _UP_JOINTS:
             U = _find(skeleton, endings, below)
@@ -158,6 +158,10 @@ def _body_frame_cached(skeleton: Skeleton, left_hip, right_hip, up_joint) -> Bod
             raise ValueError("body frame: cannot find a head/neck/spine joint below the pelvis "
                              f"{skeleton.names[pelvis]!r}; pass up_joint=")
     left = _rest_position(skeleton, L, pelvis) - _rest_position(skeleton, R, pelvis)
+    tiny = 1e-6 * max(1.0, np.linalg.norm(skeleton.offsets[L]))
+    if np.linalg.norm(left) < tiny:  # CMU's lhipjoint / rhipjoint: both start at the root
+        raise ValueError(f"body frame: the hips found, {skeleton.names[L]!r} and "
+                         f"{skeleton.names[R]!r}, are at one point")
     up = _rest_position(skeleton, U, pelvis)
     nu = np.linalg.norm(up)
     if nu < 1e-9:
@@ -165,8 +169,9 @@ def _body_frame_cached(skeleton: Skeleton, left_hip, right_hip, up_joint) -> Bod
     up = up / nu
     left = left - (left @ up) * up
     nl = np.linalg.norm(left)
-    if nl < 1e-6 * max(1.0, np.linalg.norm(skeleton.offsets[L])):
-        raise ValueError("body frame: the hip line is parallel to the up direction")
+    if nl < tiny:
+        raise ValueError(f"body frame: the hip line ({skeleton.names[L]!r} to "
+                         f"{skeleton.names[R]!r}) is parallel to the up direction")
     left = left / nl
     forward = np.cross(left, up)
     for a in (left, up, forward):
@@ -198,7 +203,7 @@ def body_forward(skeleton: Skeleton, **names) -> np.ndarray:
 
 def chain_global_rotmat(skeleton: Skeleton, rotmats: torch.Tensor, joint: int) -> torch.Tensor:
     """Global rotation (..., 3, 3) of one ``joint`` from local rotations (..., J, 3, 3)."""
-    chain = _ancestors(skeleton, joint)[::-1]
+    chain = ancestors(skeleton, joint)[::-1]
     G = rotmats[..., chain[0], :, :]
     for j in chain[1:]:
         G = G @ rotmats[..., j, :, :]

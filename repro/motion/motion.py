@@ -129,24 +129,27 @@ class Motion:
         return Motion(self.root.detach(), self.rot6d.detach(), self.skeleton, self.fps)
 
     @staticmethod
-    def cat_time(motions: Sequence["Motion"]) -> "Motion":
-        """Concatenate along time (same batch size, skeleton and fps)."""
+    def _cat(motions: Sequence["Motion"], dim: int, same: str, what: str) -> "Motion":
+        """Concatenate along ``dim``; every motion's skeleton, fps and ``same`` (an attribute)
+        must be the first's, else a ValueError ``{what}``."""
         first = motions[0]
         for m in motions[1:]:
-            if m.skeleton != first.skeleton or m.fps != first.fps or m.batch_size != first.batch_size:
-                raise ValueError("cat_time needs the same skeleton, fps and batch size")
-        return Motion(torch.cat([m.root for m in motions], 1),
-                      torch.cat([m.rot6d for m in motions], 1), first.skeleton, first.fps)
+            if m.skeleton != first.skeleton or m.fps != first.fps \
+                    or getattr(m, same) != getattr(first, same):
+                raise ValueError(what)
+        return Motion(torch.cat([m.root for m in motions], dim),
+                      torch.cat([m.rot6d for m in motions], dim), first.skeleton, first.fps)
+
+    @staticmethod
+    def cat_time(motions: Sequence["Motion"]) -> "Motion":
+        """Concatenate along time (same batch size, skeleton and fps)."""
+        return Motion._cat(motions, 1, "batch_size",
+                           "cat_time needs the same skeleton, fps and batch size")
 
     @staticmethod
     def cat_batch(motions: Sequence["Motion"]) -> "Motion":
         """Concatenate along the batch (same length, skeleton and fps)."""
-        first = motions[0]
-        for m in motions[1:]:
-            if m.skeleton != first.skeleton or m.fps != first.fps or m.n_frames != first.n_frames:
-                raise ValueError("cat_batch needs the same skeleton, fps and length")
-        return Motion(torch.cat([m.root for m in motions], 0),
-                      torch.cat([m.rot6d for m in motions], 0), first.skeleton, first.fps)
+        return Motion._cat(motions, 0, "n_frames", "cat_batch needs the same skeleton, fps and length")
 
     # --- ClipSet bridge ------------------------------------------------------------------
     @classmethod

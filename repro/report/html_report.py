@@ -157,7 +157,7 @@ def table_page(table_id: str, out: Path, *, scale: str = "quick", dataset: str |
                run: str | None = None, items: int = 2, strips: bool = True) -> dict:
     """Write one table's page and its assets; returns what it holds (for the index)."""
     from repro.engine.run_samples import run_samples
-    from repro.engine.runner import _spec, table_view
+    from repro.engine.runner import table_spec, table_view
     from repro.render.plots import figure_plot, learning_curve_plot, table_plot
     from repro.report.strip_sets import write_strips
     from repro.store.runs import read_trainings
@@ -165,7 +165,7 @@ def table_page(table_id: str, out: Path, *, scale: str = "quick", dataset: str |
     from repro.engine.runner import table_run
     from repro.store.runs import read_run_json
 
-    spec = _spec(table_id)
+    spec = table_spec(table_id)
     path = table_run(spec, scale, dataset, run)
     rj = read_run_json(path) if path is not None else None
     # the run asked for, else the newest finished one (the view then says when a newer run
@@ -263,14 +263,14 @@ def write_report(tables: list[str], out: str | Path, *, scale: str = "quick",
                  dataset: str | None = None, run: str | None = None, items: int = 2,
                  strips: bool = True) -> Path:
     """Write the report of ``tables`` into ``out``; returns the index page's path."""
-    from repro.engine.runner import _spec, latest_run
+    from repro.engine.runner import latest_run, table_spec
     from repro.specs.load import load_all
 
     from repro.errors import ConfigError
 
     if run is not None and len(set(tables)) > 1:
         raise ConfigError("--run names one run, of one table; give one table with it")
-    ids = list(dict.fromkeys(_spec(t).id for t in tables))
+    ids = list(dict.fromkeys(table_spec(t).id for t in tables))
     out = output_dir(out)
     done = {t: table_page(t, out, scale=scale, dataset=dataset,
                           run=run if len(ids) == 1 else None, items=items, strips=strips)

@@ -90,7 +90,7 @@ def pair_strips(band, rows, n_items: int, replicate: int, key_frames: int, seed:
     """Single-step strips of a ``multiact_conditioned`` / ``transition`` band (module
     docstring); ``rows``: (RowSamples, MultiActSamples) pairs."""
     from repro.render.strips import Panel, key_frame_indices
-    from repro.report.strip_sets import Strip, _joints, _pick_items
+    from repro.report.strip_parts import Strip, pick_items, strip_joints
 
     items = band.items
     names = items.label_names
@@ -98,18 +98,18 @@ def pair_strips(band, rows, n_items: int, replicate: int, key_frames: int, seed:
         if len(g) != len(items):
             raise DataError(f"row {r.row_id}: {len(g)} samples for {len(items)} test pairs")
     out = []
-    for i in _pick_items(items.labels.numpy(), n_items, seed):
+    for i in pick_items(items.labels.numpy(), n_items, seed):
         lp, lt, lc = (int(x[i]) for x in (items.l_p, items.l_t, items.l_c))
         a_p, a_c = names[int(items.prev_labels[i])], names[int(items.labels[i])]
-        real = _joints(items.motion.select(i))[:lp + lt + lc]
+        real = strip_joints(items.motion.select(i))[:lp + lt + lc]
         panels = [Panel("Real (test pair)", real, tag=f"{a_p} > {a_c}",
                         segments=_pair_segments(lp, lt, lc, f"previous: {a_p}", a_c),
                         frame_offset=-lp)]
         shown, prev_of, lengths = [], {}, {}
         for r, g in rows:
             glt, glc = int(g.l_t[i]), int(g.l_c[i])
-            gen = _joints(g.motion.select(i))[:glt + glc]
-            anchor = _joints(g.anchor.select(i))[0]
+            gen = strip_joints(g.motion.select(i))[:glt + glc]
+            anchor = strip_joints(g.anchor.select(i))[0]
             if float(np.abs(anchor - real[lp - 1]).max()) <= PREV_TOLERANCE:
                 prev, ptag, note = real[:lp], f"previous: {a_p}", "S_p real"
                 prev_of[r.row_id] = "real"
@@ -148,7 +148,7 @@ def pair_strips(band, rows, n_items: int, replicate: int, key_frames: int, seed:
 def long_term_strips(band, rows, n_items: int, replicate: int, max_actions: int) -> list:
     """Long-term strips of a ``long_term`` band (module docstring)."""
     from repro.render.strips import Panel, Segment
-    from repro.report.strip_sets import Strip, _joints
+    from repro.report.strip_parts import Strip, strip_joints
 
     items = band.items
     names = items.label_names
@@ -167,7 +167,7 @@ def long_term_strips(band, rows, n_items: int, replicate: int, max_actions: int)
             parts = chain_parts(g, s, A, trim)
             joints, segs, start = [], [], 0
             for (row, lt, lc), tag in zip(parts, tags):
-                joints.append(_joints(g.motion.select(row))[:lt + lc])
+                joints.append(strip_joints(g.motion.select(row))[:lt + lc])
                 segs.append(Segment(start, start + lt + lc, tag,
                                     transition=(start, start + lt) if lt else None))
                 start += lt + lc

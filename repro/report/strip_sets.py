@@ -27,46 +27,13 @@ MultiAct's bands (test pairs ``[S_p, T, S_c]``, long-term label sequences) are d
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from repro.errors import DataError
-from repro.seeding import derive_seed, numpy_rng
-
-
-@dataclass
-class Strip:
-    """One strip: what it shows (``meta``) and its panels (top: real)."""
-
-    name: str                 # file stem, e.g. "band0-item3"
-    title: str
-    panels: list              # repro.render.strips.Panel
-    frames: list[int]
-    meta: dict = field(default_factory=dict)
-
-
-def _joints(motion) -> np.ndarray:
-    """(T, J, 3) float32 world joints of a one-item Motion."""
-    return motion.joints()[0].detach().cpu().numpy().astype(np.float32)
-
-
-def _pick_items(labels: np.ndarray, n: int, seed: int) -> list[int]:
-    """``n`` item positions, one per tag as far as tags go: a seeded order of the tags, the
-    first (seeded) item of each."""
-    rng = numpy_rng(seed, "strips", "items")
-    tags = rng.permutation(np.unique(labels))
-    out: list[int] = []
-    round_ = 0
-    while len(out) < min(n, len(labels)):
-        for t in tags:
-            pos = np.flatnonzero(labels == t)
-            order = numpy_rng(seed, "strips", "tag", int(t)).permutation(pos)
-            if round_ < len(order) and len(out) < n:
-                out.append(int(order[round_]))
-        round_ += 1
-    return out
+from repro.report.strip_parts import Strip, pick_items, strip_joints
+from repro.seeding import derive_seed
 
 
 def _single_strips(band, rows, n_items: int, replicate: int, key_frames: int,
@@ -76,18 +43,18 @@ def _single_strips(band, rows, n_items: int, replicate: int, key_frames: int,
     items = band.items
     names = items.label_names
     K = items.n_init
-    picks = _pick_items(items.labels.numpy(), n_items, seed)
+    picks = pick_items(items.labels.numpy(), n_items, seed)
     init_w = items.initial_world()
     real = items.real()
     out = []
     for i in picks:
         L = int(items.lengths[i])
-        ctx = _joints(init_w.select(i))
+        ctx = strip_joints(init_w.select(i))
         tag, nxt = names[int(items.labels[i])], names[int(items.next_labels[i])]
         segs = [Segment(0, K, "context"), Segment(K, K + L, tag)]
 
         def panel(label, motion):
-            act = _joints(motion.select(i))[:L]
+            act = strip_joints(motion.select(i))[:L]
             return Panel(label, np.concatenate([ctx, act]), tag=tag, segments=segs,
                          frame_offset=-K)
 
@@ -125,7 +92,7 @@ def _window_strips(band, rows, n_items: int, replicate: int, key_frames: int,
 
     ctx = band.items
     labels = np.asarray(rows[0][1].labels)
-    picks = _pick_items(labels, n_items, seed)
+    picks = pick_items(labels, n_items, seed)
     names = ctx.train.label_names
     real = real_batch(ctx.train, 1, derive_seed(seed, "strips", "real"), "strips")
     out = []
@@ -171,15 +138,15 @@ def _sequence_strips(band, rows, n_items: int, replicate: int, max_actions: int)
         segs = [Segment(0, K, "context")] + [
             Segment(a, a + n, t, transition=None if j == 0 else (a - K, a))
             for j, (a, n, t) in enumerate(zip(starts, lens, tags))]
-        ctx = _joints(init_w.select(pos[0]))
-        real_j = np.concatenate([ctx] + [_joints(real.motion.select(p))[:n]
+        ctx = strip_joints(init_w.select(pos[0]))
+        real_j = np.concatenate([ctx] + [strip_joints(real.motion.select(p))[:n]
                                          for p, n in zip(pos, lens)])
         panels = [Panel("Real (test-set actions)", real_j, tag=" > ".join(tags), segments=segs,
                         frame_offset=-K)]
         shown = []
         revised_any = False
         for r, g in rows:
-            acts = [_joints(g.motion.select(s * L + j))[:n] for j, n in enumerate(lens)]
+            acts = [strip_joints(g.motion.select(s * L + j))[:n] for j, n in enumerate(lens)]
             rev = [bool(g.revised[s * L + j]) if g.revised is not None else False
                    for j in range(A)]
             revised_any |= any(rev)

@@ -186,8 +186,11 @@ def _is_union_tag(step) -> bool:
     return isinstance(step, str) and (step in _UNION_TAGS or step.startswith(("list[", "dict[")))
 
 
-def _problems_from_validation(e: ValidationError, data: Any, model: type[BaseModel],
+def problems_from_validation(e: ValidationError, data: Any, model: type[BaseModel],
                               file: str | Path) -> list[SpecError]:
+    """One :class:`SpecError` per problem pydantic found validating ``data`` (a parsed TOML
+    file) as ``model``, each naming ``file`` and the field: what a table spec, the scale
+    profiles and a data-set spec all report (:class:`SpecValidationError`)."""
     out: list[SpecError] = []
     seen: set[tuple] = set()
     for err in e.errors(include_url=False):
@@ -240,7 +243,7 @@ def validate_spec_data(data: dict[str, Any], file: str | Path) -> TableSpec:
     try:
         spec = TableSpec.model_validate(data)
     except ValidationError as e:
-        raise SpecValidationError(_problems_from_validation(e, data, TableSpec, file), file) from None
+        raise SpecValidationError(problems_from_validation(e, data, TableSpec, file), file) from None
     problems = [SpecError(p, file, loc) for loc, p in cross_check(spec)]
     expected = _expected_id(Path(file))
     if expected is not None and spec.id != expected:
@@ -259,10 +262,10 @@ def load_spec(path: str | Path) -> TableSpec:
     """Load and validate one spec file."""
     path = Path(path)
     data = read_toml(path)
-    return validate_spec_data(data, _display_path(path))
+    return validate_spec_data(data, display_path(path))
 
 
-def _display_path(path: Path) -> str:
+def display_path(path: Path) -> str:
     """The path relative to the tables root's parent (``tables/marionette/table3.toml``) when
     possible, else as given."""
     try:
@@ -294,7 +297,7 @@ def load_all(root: str | Path | None = None) -> dict[str, TableSpec]:
     for p in spec_paths(root):
         spec = load_spec(p)
         if spec.id in specs:
-            raise SpecError(f"duplicate spec id {spec.id!r}", _display_path(p), "id")
+            raise SpecError(f"duplicate spec id {spec.id!r}", display_path(p), "id")
         specs[spec.id] = spec
     return specs
 

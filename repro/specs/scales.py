@@ -226,15 +226,16 @@ def scales_path(root: str | Path | None = None) -> Path:
 
 def load_scales(path: str | Path | None = None) -> ScaleFile:
     """Load and validate ``tables/scales.toml``; errors name the file, profile and field."""
-    from repro.specs.load import SpecValidationError, _display_path, _problems_from_validation, read_toml
+    from repro.specs.load import (SpecValidationError, display_path, problems_from_validation,
+                                  read_toml)
 
     path = Path(path) if path is not None else scales_path()
     data = read_toml(path)
-    shown = _display_path(path)
+    shown = display_path(path)
     try:
         return ScaleFile.model_validate(data)
     except ValidationError as e:
-        raise SpecValidationError(_problems_from_validation(e, data, ScaleFile, shown), shown) from None
+        raise SpecValidationError(problems_from_validation(e, data, ScaleFile, shown), shown) from None
 
 
 #: ``--device`` of the running command (None: each profile's own device)

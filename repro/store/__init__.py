@@ -1,4 +1,5 @@
-"""Content-addressed store (``objects``) and run records (``runs``, indexed by ``index``).
+"""Content-addressed store (``objects``) and run records (``runs`` writes them, ``run_files``
+reads them back, ``index`` indexes them).
 
 See ``docs/store.md``.  The names below are loaded lazily (PEP 562) so that importing one
 submodule does not pull in the others (this keeps the source hash of job implementations that
@@ -7,19 +8,15 @@ use one of them small; see ``repro.engine.source_hash``).
 
 from __future__ import annotations
 
-import importlib
+from repro.lazy_exports import lazy_getattr
 
 _EXPORTS = {
     "Store": "objects", "StoredObject": "objects", "ObjectInfo": "objects",
     "CorruptObject": "objects", "VerifyReport": "objects", "GcReport": "objects",
-    "RunRecorder": "runs", "RunRecord": "runs", "load_run": "runs", "resolve_run": "runs",
-    "collect_garbage": "runs", "QUEUED": "runs", "RUNNING": "runs", "FINISHED": "runs",
-    "FAILED": "runs", "INTERRUPTED": "runs", "RunIndex": "index",
+    "RunRecorder": "runs", "collect_garbage": "runs", "RunRecord": "run_files",
+    "load_run": "run_files", "resolve_run": "run_files", "QUEUED": "run_files",
+    "RUNNING": "run_files", "FINISHED": "run_files", "FAILED": "run_files",
+    "INTERRUPTED": "run_files", "RunIndex": "index",
 }
 __all__ = sorted(_EXPORTS)
-
-
-def __getattr__(name: str):
-    if name in _EXPORTS:
-        return getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_getattr(__name__, _EXPORTS)

@@ -37,8 +37,8 @@ from pathlib import Path
 from typing import Any
 
 from repro.errors import ConfigError, DataError
-from repro.store.runs import (RUN_JSON, RUNNING, QUEUED, VALUES_JSONL, load_run,
-                              reconcile_stale, run_dirs)
+from repro.store.run_files import (RUN_JSON, RUNNING, QUEUED, VALUES_JSONL, load_run,
+                                   reconcile_stale, run_dirs)
 
 INDEX_SCHEMA = 2
 log = logging.getLogger("repro.runs")

@@ -27,13 +27,15 @@ Guarantees:
   the caller rebuilds it.  Files of at least ``stamp_min_bytes`` (default 64 MiB) whose
   (size, mtime, inode) still match a stamp written after a full hash are not re-hashed by
   :meth:`get`; :meth:`verify` always hashes everything (see ``docs/store.md`` for the timings).
+
+The key format, the manifest and the records the store hands out (:class:`StoredObject`, …)
+are in :mod:`repro.store.object_files`.
 """
 
 from __future__ import annotations
 
 import logging
 import os
-import re
 import secrets
 import shutil
 import stat
@@ -41,17 +43,18 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from repro.keys import sha256_file
 from repro.store.atomic import atomic_write_json, fsync_dir, jsonable, utc_now
+# repro.store's lazy names find the records here (its __init__, in every job's source hash,
+# still maps them to this module)
+from repro.store.object_files import (KEY_RE, MANIFEST, STORE_SCHEMA, CorruptObject, GcReport,
+                                      ObjectInfo, StoredObject, VerifyReport, check_key,
+                                      payload_files, rmtree, tree_size)
 
-STORE_SCHEMA = 1
-MANIFEST = "manifest.json"
 STAMP_MIN_BYTES = 64 << 20
-_KEY_RE = re.compile(r"^[0-9a-f]{64}$")
 _TMP_PREFIX = ".tmp-"
 _OLD_PREFIX = ".old-"
 
@@ -67,135 +70,6 @@ def _held_keys() -> set[str]:
     if s is None:
         s = _held.keys = set()
     return s
-
-
-def check_key(key: str) -> str:
-    """Return ``key`` if it is a 64-character lowercase sha256 hex digest, else raise."""
-    if not isinstance(key, str) or not _KEY_RE.match(key):
-        raise ValueError(f"not a store key (64 lowercase hex digits): {key!r}")
-    return key
-
-
-@dataclass(frozen=True)
-class StoredObject:
-    """A published (verified) object: its folder and manifest.
-
-    ``hit`` says whether the call that returned it found it already stored (``True``) or
-    computed it (``False``); ``ephemeral`` marks outputs of uncacheable jobs that live in a
-    temporary folder and are never published.
-    """
-
-    key: str
-    kind: str
-    path: Path
-    files: dict[str, dict[str, Any]]
-    created: str
-    meta: dict[str, Any] = field(default_factory=dict)
-    hit: bool = True
-    ephemeral: bool = False
-
-    def file(self, name: str) -> Path:
-        """The path of payload file ``name`` (a manifest entry, ``/``-separated)."""
-        if name not in self.files:
-            raise KeyError(f"object {self.key[:12]} ({self.kind}) has no file {name!r}; "
-                           f"it has {sorted(self.files)}")
-        return self.path / name
-
-    def read_bytes(self, name: str) -> bytes:
-        return self.file(name).read_bytes()
-
-    def read_text(self, name: str) -> str:
-        return self.file(name).read_text(encoding="utf-8")
-
-    def read_json(self, name: str) -> Any:
-        import json
-
-        return json.loads(self.read_text(name))
-
-    @property
-    def size(self) -> int:
-        return int(sum(int(f["size"]) for f in self.files.values()))
-
-
-@dataclass(frozen=True)
-class ObjectInfo:
-    """One line of :meth:`Store.ls`."""
-
-    key: str
-    kind: str
-    size: int
-    n_files: int
-    created: str
-    meta: dict[str, Any]
-    problem: str | None = None
-
-
-@dataclass(frozen=True)
-class CorruptObject:
-    """A corrupt object that was found (and quarantined unless another process held its lock)."""
-
-    key: str
-    problem: str
-    quarantined_to: Path | None
-
-
-@dataclass
-class VerifyReport:
-    ok: list[str] = field(default_factory=list)
-    corrupt: list[CorruptObject] = field(default_factory=list)
-
-
-@dataclass
-class GcReport:
-    """What :meth:`Store.gc` removed (or, with ``dry_run``, would remove)."""
-
-    dry_run: bool
-    objects: list[ObjectInfo] = field(default_factory=list)
-    temp_dirs: list[Path] = field(default_factory=list)
-    scratch_dirs: list[Path] = field(default_factory=list)
-    quarantine_dirs: list[Path] = field(default_factory=list)
-    kept_locked: list[str] = field(default_factory=list)
-    freed_bytes: int = 0
-
-
-def _tree_size(path: Path) -> int:
-    total = 0
-    for p in path.rglob("*"):
-        try:
-            if p.is_file() and not p.is_symlink():
-                total += p.stat().st_size
-        except OSError:
-            pass
-    return total
-
-
-def _rmtree(path: Path) -> None:
-    """Remove a folder whose files may be read-only (the folders themselves are writable)."""
-
-    def onerror(func, p, exc_info):  # pragma: no cover - only with odd permissions
-        try:
-            os.chmod(p, stat.S_IRWXU)
-            func(p)
-        except OSError:
-            pass
-
-    if path.exists():
-        shutil.rmtree(path, onerror=onerror)
-
-
-def _payload_files(folder: Path) -> Iterator[tuple[str, Path]]:
-    """(manifest name, path) of every payload file under ``folder``, sorted; refuses links."""
-    for p in sorted(folder.rglob("*")):
-        rel = p.relative_to(folder).as_posix()
-        if p.is_symlink():
-            raise ValueError(f"store payloads must be plain files; {rel} is a symbolic link")
-        if p.is_dir():
-            continue
-        if not p.is_file():
-            raise ValueError(f"store payloads must be plain files; {rel} is not one")
-        if rel == MANIFEST:
-            continue
-        yield rel, p
 
 
 def _hash_file_fsync(path: Path) -> str:
@@ -348,7 +222,7 @@ class Store:
         stamps = self._load_stamps(key) if use_stamps else {}
         expected = man["files"]
         try:
-            present = {rel for rel, _ in _payload_files(d)}
+            present = {rel for rel, _ in payload_files(d)}
         except (ValueError, OSError) as e:
             return None, str(e)
         extra = sorted(present - set(expected))
@@ -452,7 +326,7 @@ class Store:
 
     def _publish(self, key: str, kind: str, tmp: Path, meta: dict | None) -> StoredObject:
         files = {}
-        for rel, p in _payload_files(tmp):
+        for rel, p in payload_files(tmp):
             files[rel] = {"sha256": _hash_file_fsync(p), "size": p.stat().st_size}
         if (tmp / MANIFEST).exists():
             raise ValueError(f"a payload may not contain a file named {MANIFEST} (reserved)")
@@ -469,7 +343,7 @@ class Store:
         os.replace(tmp, final)
         fsync_dir(final.parent)
         if old is not None:
-            _rmtree(old)
+            rmtree(old)
         self._write_stamps(key, files)
         return self._object(key, man, hit=False)
 
@@ -501,9 +375,9 @@ class Store:
                 fn(tmp)
                 obj = self._publish(key, kind, tmp, meta)
             except BaseException:
-                _rmtree(tmp)
+                rmtree(tmp)
                 raise
-            _rmtree(self.root / "scratch" / key)
+            rmtree(self.root / "scratch" / key)
             return obj
 
     def put(self, key: str, src_folder: str | Path, kind: str, meta: dict | None = None,
@@ -528,14 +402,14 @@ class Store:
             if not sub.is_dir() or sub.name.startswith("."):
                 continue
             for d in sorted(sub.iterdir()):
-                if d.is_dir() and _KEY_RE.match(d.name):
+                if d.is_dir() and KEY_RE.match(d.name):
                     out.append(d.name)
         return out
 
     def info(self, key: str) -> ObjectInfo:
         man, problem = self._read_manifest(key)
         if man is None:
-            return ObjectInfo(key, "?", _tree_size(self.object_dir(key)), 0, "", {}, problem)
+            return ObjectInfo(key, "?", tree_size(self.object_dir(key)), 0, "", {}, problem)
         files = man["files"]
         return ObjectInfo(key=key, kind=man["kind"],
                           size=int(sum(int(f.get("size", 0)) for f in files.values())),
@@ -580,7 +454,7 @@ class Store:
                 for prefix in (_TMP_PREFIX, _OLD_PREFIX):
                     if d.name.startswith(prefix):
                         key = d.name[len(prefix):len(prefix) + 64]
-                        if _KEY_RE.match(key):
+                        if KEY_RE.match(key):
                             out.append((key, d))
         return out
 
@@ -607,28 +481,28 @@ class Store:
                 rep.objects.append(info)
                 rep.freed_bytes += info.size
                 if not dry_run:
-                    _rmtree(self.object_dir(key))
+                    rmtree(self.object_dir(key))
                     self.stamp_path(key).unlink(missing_ok=True)
         for key, d in self._stale_temp_dirs():
             with self.lock(key, blocking=False) as held:
                 if held:
                     rep.temp_dirs.append(d)
-                    rep.freed_bytes += _tree_size(d)
+                    rep.freed_bytes += tree_size(d)
                     if not dry_run:
-                        _rmtree(d)
+                        rmtree(d)
         scratch_root = self.root / "scratch"
         if scratch_root.is_dir():
             for d in sorted(scratch_root.iterdir()):
-                if not _KEY_RE.match(d.name):
+                if not KEY_RE.match(d.name):
                     continue
                 if not (include_scratch or self.has(d.name)):
                     continue
                 with self.lock(d.name, blocking=False) as held:
                     if held:
                         rep.scratch_dirs.append(d)
-                        rep.freed_bytes += _tree_size(d)
+                        rep.freed_bytes += tree_size(d)
                         if not dry_run:
-                            _rmtree(d)
+                            rmtree(d)
         for parent, found in ((self.quarantine_dir, rep.quarantine_dirs),
                               (self.tmp_dir, rep.temp_dirs)):
             if not parent.is_dir():
@@ -637,10 +511,10 @@ class Store:
                 if parent == self.tmp_dir and _owner_alive(d.name):
                     continue
                 found.append(d)
-                rep.freed_bytes += _tree_size(d) if d.is_dir() else d.stat().st_size
+                rep.freed_bytes += tree_size(d) if d.is_dir() else d.stat().st_size
                 if not dry_run:
                     if d.is_dir():
-                        _rmtree(d)
+                        rmtree(d)
                     else:
                         d.unlink(missing_ok=True)
         return rep
@@ -667,15 +541,4 @@ def _owner_alive(name: str) -> bool:
     return True
 
 
-def describe_bytes(n: int) -> str:
-    """Human-readable size (binary units)."""
-    size = float(n)
-    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
-        if size < 1024 or unit == "TiB":
-            return f"{size:.0f} {unit}" if unit == "B" else f"{size:.1f} {unit}"
-        size /= 1024
-    return f"{n} B"  # pragma: no cover
-
-
-__all__ = ["Store", "StoredObject", "ObjectInfo", "CorruptObject", "VerifyReport", "GcReport",
-           "STORE_SCHEMA", "check_key", "describe_bytes"]
+__all__ = ["Store"]

@@ -1,5 +1,5 @@
-"""Shape checks of a run folder's files as read back (:func:`repro.store.runs.read_run_json`,
-:func:`~repro.store.runs.read_values`).
+"""Shape checks of a run folder's files as read back (:func:`repro.store.run_files.read_run_json`,
+:func:`~repro.store.run_files.read_values`).
 
 A run folder is plain files anyone can edit, and one damaged record must not break the
 commands about every other run (``repro runs ls`` indexes them all).  So what the readers

@@ -67,7 +67,7 @@ def holdout_positions(items, fraction: float, seed: int) -> tuple[np.ndarray, np
 
 
 def holdout(items, fraction: float, seed: int):
-    """Split ``items`` (an :class:`~repro.models.items.ActionItems`) into
+    """Split ``items`` (an :class:`~repro.data.action_items.ActionItems`) into
     ``(train_items, val_items)`` by source clip, stratified per class (module docstring).
 
     ``fraction`` (0 ≤ f < 1) is the share of each class's clips held out, rounded to the

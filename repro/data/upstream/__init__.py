@@ -12,19 +12,20 @@ layouts in ``docs/datasets.md`` and each module's docstring):
   SMPL-H body model -> :mod:`.babel`, :mod:`.amass`, :mod:`.smpl`;
 - ``babel-mag`` (Neural Marionette): not public; its status says so.
 
-``ENTRIES`` is read by :mod:`repro.data.registry`.  Status checks are cheap (file presence;
-fingerprints are content hashes cached by file stat, see :mod:`.fingerprint`).  Validation
-(``repro doctor``, issue 16) runs each reader's own checks on the files present (HumanAct12:
-the restricted unpickler and every clip's shape, values and label; UESTC and CMU MoCap: every
-listed clip's ``.npy``; BABEL: the annotations, already read by its status check), without
-building a ClipSet.
+``ENTRIES`` is read by :mod:`repro.data.registry` (:func:`repro.data.builtin_sets.
+upstream_entries`); the entries are :mod:`repro.data.dataset_entry`'s.  Status checks are cheap
+(file presence; fingerprints are content hashes cached by file stat, see :mod:`.fingerprint`).
+Validation (``repro doctor``, issue 16) runs each reader's own checks on the files present
+(HumanAct12: the restricted unpickler and every clip's shape, values and label; UESTC and CMU
+MoCap: every listed clip's ``.npy``; BABEL: the annotations, already read by its status check),
+without building a ClipSet.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from repro.data.registry import DatasetEntry, DatasetStatus
+from repro.data.dataset_entry import DatasetEntry, DatasetStatus
 from repro.errors import ReproError
 
 from .locations import PAPER_DATA_ENV, paper_data_dir, paper_data_root

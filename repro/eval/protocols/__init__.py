@@ -17,6 +17,7 @@ import importlib
 from typing import Any, Mapping
 
 from repro.errors import ConfigError
+from repro.registries import add_to_registry
 
 #: protocol id -> the module that defines (and registers) it.  Add a line per new protocol.
 PROTOCOL_MODULES: dict[str, str] = {
@@ -35,14 +36,7 @@ _REGISTRY: dict[str, type] = {}
 
 def register(cls):
     """Class decorator: make a Protocol subclass findable by :func:`get_protocol`."""
-    pid = getattr(cls, "id", None)
-    if not isinstance(pid, str) or not pid:
-        raise TypeError(f"{cls.__name__} needs a non-empty str id")
-    other = _REGISTRY.get(pid)
-    if other is not None and other.__qualname__ != cls.__qualname__:
-        raise TypeError(f"protocol id {pid!r} is taken by {other.__qualname__}")
-    _REGISTRY[pid] = cls
-    return cls
+    return add_to_registry(_REGISTRY, cls, "id", "protocol id")
 
 
 def _spec_protocols() -> tuple[str, ...]:

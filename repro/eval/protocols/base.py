@@ -17,6 +17,13 @@ Each protocol has a ``Params`` model (pydantic, ``extra="forbid"``, frozen): the
 ``protocol_params`` overlaid by the scale profile's ``[<scale>.protocols.<id>]`` table.  Every
 choice a paper leaves open is a field with a default, recorded by :meth:`ProtocolParams.describe`
 and so part of every content key downstream.
+
+Every table protocol trains on items of the data layer (:mod:`repro.data.item_sources`): its
+``Params`` derive from :class:`ItemParams`, which names the item source and which of its fields
+say how the items are made (Neural Marionette §5.1.1, supp. §3; MultiAct §4.1; ODMO §3.1), and
+the protocol from :class:`ItemProtocol`, whose :meth:`~ItemProtocol.item_source`,
+:meth:`~ItemProtocol.split_clipset` and :meth:`~ItemProtocol.train_items` are that source's.
+Two protocols with equal item fields train on the same items, so they share trained models.
 """
 
 from __future__ import annotations
@@ -25,7 +32,7 @@ import abc
 from pathlib import Path
 from typing import Any, ClassVar, Mapping
 
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, Field
 
 from repro.config_errors import resolve_config
 from repro.keys import content_key
@@ -50,6 +57,39 @@ class ProtocolParams(BaseModel):
     def resolve(cls, params: "ProtocolParams | Mapping[str, Any] | None", *, where: str):
         """``params`` validated over the defaults; a ConfigError names the first bad field."""
         return resolve_config(cls, params, f"{where}: parameter")
+
+
+class ItemParams(ProtocolParams):
+    """Base of the ``Params`` of a protocol whose items come from an item source (module
+    docstring): :attr:`ITEM_FIELDS` maps the fields that say how the items are made onto the
+    fields of :attr:`ITEM_SOURCE`; :attr:`MORE_ITEM_FIELDS` names a dict field passed through
+    to the source (its other fields, validated there)."""
+
+    #: the :class:`repro.data.item_sources.ItemSource` class these fields describe
+    ITEM_SOURCE: ClassVar[type]
+    #: {field of these params: field of the item source}
+    ITEM_FIELDS: ClassVar[Mapping[str, str]] = {}
+    #: a dict field holding further item-source fields, or None
+    MORE_ITEM_FIELDS: ClassVar[str | None] = None
+
+    def item_fields(self) -> dict:
+        """The item source's fields: :attr:`MORE_ITEM_FIELDS`' entries, then the mapped ones
+        (which win)."""
+        more = dict(getattr(self, self.MORE_ITEM_FIELDS)) if self.MORE_ITEM_FIELDS else {}
+        return {**more, **{src: getattr(self, name) for name, src in self.ITEM_FIELDS.items()}}
+
+    def item_source(self, where: str):
+        """The item source these fields describe (a ConfigError naming ``where`` and the field
+        when one is not valid)."""
+        return self.ITEM_SOURCE.make(where, **self.item_fields())
+
+
+class SequenceItemParams(ItemParams):
+    """:class:`ItemParams` of the families whose items are cut from composed multi-action
+    sequences (Neural Marionette's actions, MultiAct's pairs; :mod:`repro.data.sequences`)."""
+
+    compose: dict = Field(default_factory=dict,
+                          description="repro.data.sequences.ComposeConfig overrides")
 
 
 class Protocol(abc.ABC):
@@ -115,3 +155,23 @@ class Protocol(abc.ABC):
     @abc.abstractmethod
     def load_generated(self, path: str | Path):
         """Read samples written by :meth:`save_generated`."""
+
+
+class ItemProtocol(Protocol):
+    """A protocol whose items come from the item source its :class:`ItemParams` describe."""
+
+    params: ItemParams
+
+    def item_source(self):
+        """How the items are made (shared with every protocol of equal item fields and with
+        the engine's training step): an :class:`repro.data.item_sources.ItemSource`."""
+        return self.params.item_source(f"protocol {self.id!r}")
+
+    def split_clipset(self, clipset):
+        """``clipset`` with the items' split (and frame rate): what the evaluator trains on,
+        so that no scored test clip was seen by the recogniser."""
+        return self.item_source().split_clipset(clipset)
+
+    def train_items(self, clipset):
+        """The items a generator is trained on (the item source's training split)."""
+        return self.item_source().train_items(clipset)

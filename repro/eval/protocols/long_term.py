@@ -15,7 +15,7 @@ labels leading only to sinks) are pruned first, so every step is a test pair (ou
 paper does not say what happens at a dead end).
 
 Lengths (supp.; the released generator's ``recursive/stats.pkl``, §4.8) from
-:meth:`repro.data.pairs.PairSource.length_stats` (per ``S_c`` label over the training pairs):
+:meth:`repro.data.pairs_build.PairSource.length_stats` (per ``S_c`` label over the training pairs):
 ``l_T(a)`` = mean transition length before an action of ``a``, ``l_S(a)`` = mean ``S_c`` length
 + 2, both rounded (at least 1 frame).  The previous motion of step x is ``S_{x−1}`` without its
 last ``prev_trim`` (2) frames (the reference's "prev S2_len − 2"), cut to its last frames so that
@@ -214,7 +214,7 @@ class LongTerm(MultiActProtocol):
     # -- test plan -------------------------------------------------------------------------
     def walk_pairs(self, clipset) -> list[tuple[int, int]]:
         """The ``(a, b)`` label pairs the walks follow (``successors``): the test pairs' own
-        (:meth:`repro.data.pairs.PairSource.label_pairs` on TEST; the paper's rule), or every
+        (:meth:`repro.data.pairs_build.PairSource.label_pairs` on TEST; the paper's rule), or every
         pair the training sequences join at least once (the public
         :meth:`repro.data.sequences.SequenceSet.tag_pair_counts` ``(TRAIN)``)."""
         src = self.item_source()

@@ -2,14 +2,16 @@
 §5.1.1-5.1.4), ``multi_action`` (Table 3, Fig. 8; §5.2.1-5.2.3, supp. §4.2-4.3) and ``ss_ar``
 (Table 5, Fig. 10; §5.2.6).
 
-- :class:`ItemSourceParams`: the fields that say how the items are made (§5.1.1, supp. §3:
+- :class:`ActionItemParams`: the fields that say how the items are made (§5.1.1, supp. §3:
   the Marionette test split, 30 fps, ``initial_frames`` = 6 frames of initial motion, the
-  context of :mod:`repro.data.contexts`); two protocols with equal values train on the same
-  items, so they share trained models;
+  context of :mod:`repro.data.contexts`), mapped onto
+  :class:`repro.data.contexts.ActionSource` (:class:`~repro.eval.protocols.base.ItemParams`);
+  two protocols with equal values train on the same items, so they share trained models;
 - :class:`MarionetteParams`: those plus the scoring fields both protocols read (what the
   evaluator sees of an action, FID's method, the harness columns, the replicate count);
-- :class:`MarionetteProtocol`: the protocols' common data path (:meth:`~MarionetteProtocol.
-  item_source`, the split, the training items) and evaluator pass (:func:`evaluation_clips`);
+- :class:`MarionetteProtocol`: the protocols' common data path (the item source, the split
+  and the training items of :class:`~repro.eval.protocols.base.ItemProtocol`) and evaluator
+  pass (:func:`evaluation_clips`);
 - :func:`write_samples` / :func:`read_samples`: their sample files, one motion set (the
   samples) and optionally more under a prefix, plus protocol-specific ``meta`` entries and
   arrays, in the layout of :mod:`repro.eval.sample_files`.
@@ -19,20 +21,27 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal, Mapping
+from typing import ClassVar, Literal, Mapping
 
 import numpy as np
 import torch
 from pydantic import Field
 
+from repro.data.contexts import ActionSource
 from repro.errors import ConfigError
-from repro.eval.protocols.base import Protocol, ProtocolParams
+from repro.eval.protocols.base import ItemProtocol, SequenceItemParams
 
 
-class ItemSourceParams(ProtocolParams):
+class ActionItemParams(SequenceItemParams):
     """The fields that say how a protocol's items are made, shared by every protocol that
-    builds them with :class:`repro.data.contexts.ItemSource` (single-action, multi-action,
+    builds them with :class:`repro.data.contexts.ActionSource` (single-action, multi-action,
     SS/AR): two protocols with equal values train on the same items, so they share models."""
+
+    ITEM_SOURCE: ClassVar[type] = ActionSource
+    ITEM_FIELDS: ClassVar[Mapping[str, str]] = {
+        "context": "context", "fps": "fps", "split": "split", "split_seed": "split_seed",
+        "test_fraction": "test_fraction", "test_cap_per_class": "test_cap_per_class",
+        "initial_frames": "n_init", "max_frames": "max_frames", "compose": "compose"}
 
     # fixed by Neural Marionette (§5.1.1, supp. §3)
     initial_frames: int = Field(6, ge=1, description="frames of initial motion (supp. §3)")
@@ -46,23 +55,11 @@ class ItemSourceParams(ProtocolParams):
     context: Literal["sequence", "same_clip"] = Field(
         "sequence", description="where P^ini and the next tag come from: the action's composed "
         "sequence (repro.data.contexts), or the clip itself (the earlier, leaking construction)")
-    compose: dict = Field(default_factory=dict,
-                          description="repro.data.sequences.ComposeConfig overrides")
     max_frames: int = Field(120, ge=1, description="cap on an action's duration (frames)")
 
-    def item_source(self, where: str):
-        """The :class:`repro.data.contexts.ItemSource` these fields describe."""
-        from repro.data.contexts import ItemSource
 
-        return ItemSource.make(where, context=self.context, fps=self.fps, split=self.split,
-                               split_seed=self.split_seed, test_fraction=self.test_fraction,
-                               test_cap_per_class=self.test_cap_per_class,
-                               n_init=self.initial_frames, max_frames=self.max_frames,
-                               compose=self.compose)
-
-
-class MarionetteParams(ItemSourceParams):
-    """:class:`ItemSourceParams` plus the scoring fields every Neural Marionette protocol reads
+class MarionetteParams(ActionItemParams):
+    """:class:`ActionItemParams` plus the scoring fields every Neural Marionette protocol reads
     (open choices, docs/protocols.md; the harness columns are in no paper)."""
 
     replicates: int | None = Field(None, ge=1, description="read by the engine (scale profile)")
@@ -97,31 +94,18 @@ def evaluation_clips(joints, lengths, window: int, mode: str) -> tuple[np.ndarra
     return out, np.minimum(lens, window)
 
 
-class MarionetteProtocol(Protocol):
-    """Base of Neural Marionette's protocols: items from :class:`ItemSourceParams`
-    (:class:`repro.data.contexts.ItemSource`), actions shown to the evaluator as
+class MarionetteProtocol(ItemProtocol):
+    """Base of Neural Marionette's protocols: items from :class:`ActionItemParams`
+    (:class:`repro.data.contexts.ActionSource`: one item per action,
+    :class:`repro.data.action_items.ActionItems`), actions shown to the evaluator as
     ``eval_clip`` says (:func:`evaluation_clips`)."""
 
     params: MarionetteParams
 
     # -- data ------------------------------------------------------------------------------
-    def item_source(self):
-        """How items are made (shared with the other Neural Marionette protocols and the
-        training step): a :class:`repro.data.contexts.ItemSource`."""
-        return self.params.item_source(f"protocol {self.id!r}")
-
-    def split_clipset(self, clipset):
-        """``clipset`` with the protocol's train/test split (train the evaluator on this one
-        too, so that no scored test clip was seen by the recogniser)."""
-        return self.item_source().split_clipset(clipset)
-
     def items_config(self):
-        """The :class:`repro.models.items.ItemsConfig` the items are cut with."""
+        """The :class:`repro.data.action_items.ItemsConfig` the items are cut with."""
         return self.item_source().items_config()
-
-    def train_items(self, clipset):
-        """One item per training action (:class:`repro.models.items.ActionItems`)."""
-        return self.item_source().train_items(clipset)
 
     def evaluator_overrides(self) -> dict:
         """Evaluator settings this protocol asks for: with items from composed sequences, the

@@ -1,7 +1,7 @@
 """``multi_action``: Neural Marionette's multi-action protocol (Table 3, Table 4's multi-action
 columns, Fig. 8; paper §5.2.1-5.2.3, supp. §4.2-4.3 and Alg. 1).
 
-**Test sets** (supp. §4.2).  The test actions (:class:`repro.data.contexts.ItemSource`: the
+**Test sets** (supp. §4.2).  The test actions (:class:`repro.data.contexts.ActionSource`: the
 ``ROLE_ACTION`` segments of the composed test sequences, each with its real previous motion and
 next tag) are filtered by the evaluator's confidence in their own tag (softmax probability of
 the true tag on the real action ≥ ``candidate_confidence`` = 0.5): the *action candidates*.
@@ -24,7 +24,7 @@ as supp. §5.2 assigns by default, ``last_next_tag = "same"``; or its real next 
 **Generation** (supp. Alg. 1, the pure generative pipeline): action 1 starts from the real
 previous motion of the first candidate; every later action from the last ``initial_frames`` (6)
 generated frames of the chain; each step normalises them at ``P₋₁`` (Eq. 3), generates (Eq. 4)
-and rotates back (Eq. 5) — :func:`repro.models.items.condition_items` and the generator's
+and rotates back (Eq. 5) — :func:`repro.data.action_items.condition_items` and the generator's
 ``sample``.  All sequences advance together, one batched call per action index.  A replicate
 is one pass with its own sampling seed.
 
@@ -57,19 +57,15 @@ import numpy as np
 import torch
 from pydantic import Field
 
+from repro.data.action_items import ActionItems, GeneratedItems, condition_items
 from repro.data.clipset import TEST, TRAIN
-from repro.data.contexts import cached
+from repro.data.item_sources import cached
 from repro.errors import ConfigError, DataError
 from repro.eval.memorisation import HARNESS_METRICS
 from repro.eval.protocols import register
-from repro.eval.protocols.marionette_common import (
-    MarionetteParams,
-    MarionetteProtocol,
-    read_samples,
-    write_samples,
-)
+from repro.eval.protocols.marionette_common import MarionetteParams, MarionetteProtocol
+from repro.eval.protocols.marionette_common import read_samples, write_samples
 from repro.keys import content_key
-from repro.models.items import ActionItems, GeneratedItems, condition_items
 from repro.motion.motion import Motion
 from repro.seeding import derive_seed, numpy_rng
 

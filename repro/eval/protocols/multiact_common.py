@@ -2,7 +2,8 @@
 ``long_term``; MultiAct AAAI'23 §5 and supplement; protocols.md §1, §2.3, §4).
 
 **Items.**  MultiAct's samples ``[S_p, T, S_c]`` at 20 fps come from
-:class:`repro.data.pairs.PairSource` (:meth:`MultiActProtocol.item_source`): its ``describe()``
+:class:`repro.data.pairs_build.PairSource` (:meth:`MultiActProtocol.item_source`, the fields
+:class:`MultiActParams` maps onto it): its ``describe()``
 is the training items' description, so every MultiAct protocol with equal item fields trains
 one model.  The per-label test count (``per_label``) is *not* a PairSource field here: it is
 passed to :meth:`PairSource.test_items`, so changing it leaves the trained models valid.
@@ -54,15 +55,16 @@ from collections import OrderedDict
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 import torch
 from pydantic import Field
 
 from repro.data.pairs import PairItems, gather_frames
+from repro.data.pairs_build import PairSource
 from repro.errors import ConfigError, DataError
-from repro.eval.protocols.base import Protocol, ProtocolParams
+from repro.eval.protocols.base import ItemProtocol, SequenceItemParams
 from repro.eval.protocols.multiact_conditions import (
     actor_motion,
     actor_sample,
@@ -84,8 +86,16 @@ SAVE_FORMAT = 1
 METRIC_BLOCK = ("fid_train", "fid_test", "acc", "acc_top5", "div", "multimod")
 
 
-class MultiActParams(ProtocolParams):
-    """What every MultiAct protocol reads (frames at ``fps``; the paper's values first)."""
+class MultiActParams(SequenceItemParams):
+    """What every MultiAct protocol reads (frames at ``fps``; the paper's values first).  The
+    item fields (``fps``, ``max_len``, ``train_per_label``, ``compose``, ``pair_seed`` and the
+    ``pairs`` dict) are :class:`repro.data.pairs_build.PairSource`'s."""
+
+    ITEM_SOURCE: ClassVar[type] = PairSource
+    ITEM_FIELDS: ClassVar[Mapping[str, str]] = {
+        "fps": "fps", "max_len": "max_len", "train_per_label": "train_per_label",
+        "compose": "compose", "pair_seed": "seed"}
+    MORE_ITEM_FIELDS: ClassVar[str | None] = "pairs"
 
     # fixed by MultiAct (protocols.md §4.1, §4.3)
     fps: float = Field(20.0, gt=0, description="frame rate of the samples (§4.1)")
@@ -98,9 +108,7 @@ class MultiActParams(ProtocolParams):
         "test", description="where S_p comes from: the test pairs (unseen), the training pairs "
         "(the reference's 'seen' loader) or ACTOR(a_p); a row's method config may say 'actor'")
     replicates: int | None = Field(None, ge=1, description="read by the engine (scale profile)")
-    # how the pairs are made (repro.data.pairs.PairSource; enter the training items' key)
-    compose: dict = Field(default_factory=dict,
-                          description="repro.data.sequences.ComposeConfig overrides")
+    # how the pairs are made (PairSource; enter the training items' key; and ``compose``)
     pair_seed: int = Field(0, description="seed of the PairSource's per-label draws")
     pairs: dict = Field(default_factory=dict,
                         description="other PairSource fields (crops, filters), validated there")
@@ -257,7 +265,7 @@ FOOTER_NOTE = (
     "\"generated\"; the paper is silent on the kernel).")
 
 
-class MultiActProtocol(Protocol):
+class MultiActProtocol(ItemProtocol):
     """Base of MultiAct's protocols (module docstring)."""
 
     Params = MultiActParams
@@ -279,24 +287,7 @@ class MultiActProtocol(Protocol):
     def evaluator_heading(self) -> str:
         return self.params.evaluator_heading
 
-    # -- data ------------------------------------------------------------------------------
-    def item_source(self):
-        """The :class:`repro.data.pairs.PairSource` of the training items (and test pairs)."""
-        from repro.data.pairs import PairSource
-
-        p = self.params
-        fields = {**dict(p.pairs), "fps": p.fps, "max_len": p.max_len,
-                  "train_per_label": p.train_per_label, "compose": dict(p.compose),
-                  "seed": p.pair_seed}
-        return PairSource.make(f"protocol {self.id!r}", **fields)
-
-    def split_clipset(self, clipset):
-        """The clip set the evaluator trains on: resampled to ``fps``, stored split."""
-        return self.item_source().split_clipset(clipset)
-
-    def train_items(self, clipset) -> PairItems:
-        return self.item_source().train_items(clipset)
-
+    # -- data (item_source, split_clipset, train_items: ItemProtocol, from PairSource) ---------
     def test_items(self, clipset) -> PairItems:
         """The conditioning pairs: the per-label test pairs (unseen previous motions), or the
         training pairs with ``prev_motion_source = "train"`` (the reference's "seen" loader)."""

@@ -8,7 +8,7 @@ and the lengths ``l_t``, ``l_c`` only.  :func:`blind` makes the copy every gener
 frames of ``T`` and ``S_c`` are replaced by ``S_p``'s last frame (and ``segment_index`` /
 ``clip_index`` dropped), so no method can read a target, whatever it does.
 
-**ACTOR in these protocols** (a label-only :class:`~repro.models.items.ActionItems` generator):
+**ACTOR in these protocols** (a label-only :class:`~repro.data.action_items.ActionItems` generator):
 its ``S_c`` comes from ``blind(items).as_action_items()`` (labels ``a_c``, lengths ``l_c``,
 placed at the end of ``S_p``).  A generated previous motion (``prev_motion_source = "actor"``)
 is ACTOR's action for ``a_p`` of length ``l_p``: a composite method's own ``actor_motion``
@@ -101,7 +101,7 @@ def method_is_composite(method_id: str) -> bool:
 def actor_action_items(actor, labels, lengths, anchor: Motion, label_names, *, n_init: int):
     """ActionItems for a label-only generator: ``labels``, ``lengths``; placed at ``anchor``
     (N, 1) (its pose repeated ``n_init`` times as the initial motion; placement only)."""
-    from repro.models.items import condition_items
+    from repro.data.action_items import condition_items
 
     N = anchor.batch_size
     init = anchor.replace(root=anchor.root.expand(N, n_init, 3).clone(),
@@ -126,12 +126,12 @@ def actor_sample(actor, cond, *, seed: int):
 def place_at(motion: Motion, frame: Motion) -> Motion:
     """``motion`` (N, T), given in ACTOR's own frame (the previous pose at the origin facing
     +Z), placed at ``frame`` (N, 1): the exact inverse of the normalisation
-    :func:`repro.models.items.condition_items` applies to an initial pose (Marionette
-    normalisation with :class:`~repro.models.items.ItemsConfig`'s heading axis and
+    :func:`repro.data.action_items.condition_items` applies to an initial pose (Marionette
+    normalisation with :class:`~repro.data.action_items.ItemsConfig`'s heading axis and
     translation), so the result is what ACTOR returns when conditioned on ``frame``.
     :func:`actor_motion` places a generated ``S_p`` at the real ``S_p``'s first frame (our
     reading; see there)."""
-    from repro.models.items import ItemsConfig
+    from repro.data.action_items import ItemsConfig
     from repro.motion.canon import marionette_normalize, uncanonicalize
 
     cfg = ItemsConfig()

@@ -48,25 +48,34 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar, Literal, Mapping
 
 import numpy as np
 import torch
 from pydantic import Field
 
+from repro.data.clip_draws import per_class_clips
 from repro.data.clipset import TEST, TRAIN
+from repro.data.odmo_items import WindowItems, WindowSource, label_condition_items
 from repro.errors import ConfigError, DataError
-from repro.eval.protocols.base import Protocol, ProtocolParams
+from repro.eval.protocols.base import ItemParams, ItemProtocol
 from repro.seeding import derive_seed, numpy_rng
 
 SAVE_FORMAT = 1
 SPLITS = {"train": TRAIN, "test": TEST}
 
 
-class OdmoParams(ProtocolParams):
-    """What every ODMO protocol reads (the HumanAct12 values of the reference by default)."""
+class OdmoParams(ItemParams):
+    """What every ODMO protocol reads (the HumanAct12 values of the reference by default).  The
+    item fields (``window``, ``y_weight``, ``scale``, ``partner`` and the ``windows`` dict) are
+    :class:`repro.data.odmo_items.WindowSource`'s."""
 
-    # how windows are made (repro.data.odmo_items.WindowSource; enter the training items' key)
+    ITEM_SOURCE: ClassVar[type] = WindowSource
+    ITEM_FIELDS: ClassVar[Mapping[str, str]] = {
+        "window": "window", "y_weight": "y_weight", "scale": "scale", "partner": "partner"}
+    MORE_ITEM_FIELDS: ClassVar[str | None] = "windows"
+
+    # how windows are made (WindowSource; enter the training items' key)
     window: int = Field(60, ge=2, description="T: 60 HumanAct12 / UESTC, 100 MoCap (§3.1)")
     y_weight: float = Field(5.0, gt=0, description="ODMO's y-axis loss weight (5; MoCap 1)")
     scale: float = Field(1.0, gt=0, description="position factor (MoCap /20 is CMU's unit)")
@@ -151,8 +160,8 @@ class OdmoContext:
     """What a replicate starts from: the training and test pools (:class:`WindowItems`) and
     the labels of the samples to generate (class-major, ``per_class`` each)."""
 
-    train: object
-    test: object
+    train: WindowItems
+    test: WindowItems | None
     labels: np.ndarray
 
     def __len__(self) -> int:
@@ -170,8 +179,6 @@ class OdmoContext:
 def real_batch(pool, per_class: int, seed: int, *tag):
     """ODMO's real reference set (protocols.md §3.2) as a WindowBatch: ``per_class`` windows
     of every class of ``pool`` (clips with replacement, random starts), classes in index order."""
-    from repro.eval.sampling import per_class_clips
-
     rng = numpy_rng(seed, "odmo", "real-set", *tag)
     return pool.random_cut(per_class_clips(pool.clipset, pool.indices, per_class, rng), rng)
 
@@ -182,7 +189,7 @@ def real_set(pool, per_class: int, seed: int, *tag):
     return b.joints, b.labels.astype(np.int64)
 
 
-class OdmoProtocol(Protocol):
+class OdmoProtocol(ItemProtocol):
     """Base of the ODMO protocols (module docstring)."""
 
     Params = OdmoParams
@@ -202,20 +209,6 @@ class OdmoProtocol(Protocol):
     def evaluator_overrides(self) -> dict:
         """Evaluator settings this protocol needs over the scale's: its window."""
         return {"window": int(self.params.window)}
-
-    def item_source(self):
-        from repro.data.odmo_items import WindowSource
-
-        p = self.params
-        fields = {**p.windows, "window": p.window, "y_weight": p.y_weight, "scale": p.scale,
-                  "partner": p.partner}
-        return WindowSource.make(f"protocol {self.id!r}", **fields)
-
-    def split_clipset(self, clipset):
-        return self.item_source().split_clipset(clipset)
-
-    def train_items(self, clipset):
-        return self.item_source().train_items(clipset)
 
     def context(self, clipset, per_class: int) -> OdmoContext:
         src = self.item_source()
@@ -245,7 +238,6 @@ class OdmoProtocol(Protocol):
                 kw["n_iter"] = self.params.bank_iters
             out = generator.sample_windows(torch.from_numpy(labels), T, seed=seed, pool=pool, **kw)
         else:
-            from repro.data.odmo_items import label_condition_items
             from repro.motion.motion import Motion
 
             if pool.source.scale != 1.0:

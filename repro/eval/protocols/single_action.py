@@ -59,20 +59,16 @@ import numpy as np
 import torch
 from pydantic import Field
 
+from repro.data.action_items import ActionItems, GeneratedItems
 from repro.data.clipset import TEST
-from repro.data.contexts import cached
+from repro.data.item_sources import cached
 from repro.errors import ConfigError, DataError
 from repro.eval.memorisation import HARNESS_METRICS
 from repro.eval.protocols import register
-from repro.eval.protocols.marionette_common import (
-    MarionetteParams,
-    MarionetteProtocol,
-    read_samples,
-    write_samples,
-)
+from repro.eval.protocols.marionette_common import MarionetteParams, MarionetteProtocol
+from repro.eval.protocols.marionette_common import read_samples, write_samples
 from repro.eval.protocols.marionette_common import evaluation_clips  # noqa: F401 (re-exported)
 from repro.keys import content_key
-from repro.models.items import ActionItems, GeneratedItems
 from repro.seeding import derive_seed, numpy_rng
 
 SAVE_FORMAT = 1

@@ -1,13 +1,13 @@
-"""Single-action items: what a generator is conditioned on and trained against.
+"""Single-action items: what a generator is conditioned on and trained against (data layer).
 
-One item per clip of a :class:`~repro.data.clipset.ClipSet` (Neural Marionette Sec. 4.1-4.2,
-supp. Sec. 3):
+An item (Neural Marionette §3, Fig. 2; §4.1-4.2; supp. §3) is one action to generate with what
+the generator is conditioned on:
 
-- **initial motion** ``P^ini``: the first ``K = n_init`` (6) frames of the clip;
-- **action**: the following ``T`` frames, ``T = min(len − K, max_frames)`` (the duration);
-- **tag** ``A^curr``: the clip's class; **next tag** ``A^next``: see below;
-- **trajectory** ``U`` (supp. Sec. 1.4, F: frames → R²): the action's root ground-plane path
-  ``(x, z)`` per frame, in the normalised frame; all zeros for in-place classes (Sec. 4.2.3).
+- **initial motion** ``P^ini``: ``K = n_init`` (6) frames of motion before the action;
+- **action**: the following ``T`` frames, ``T ≤ max_frames`` (the duration);
+- **tag** ``A^curr``: the action's class; **next tag** ``A^next``: the class of what follows;
+- **trajectory** ``U`` (supp. §1.4, F: frames → R²): the action's root ground-plane path
+  ``(x, z)`` per frame, in the normalised frame; all zeros for in-place classes (§4.2.3).
 
 Everything is expressed in the **Marionette-normalised frame** of the item (Alg. 1 / Eq. 3):
 rotated by the inverse heading of the last initial frame ``P₋₁`` and moved so that its root is
@@ -16,16 +16,14 @@ axis, so ``P₋₁`` faces +Z).  ``ActionItems.canon`` holds the per-item transf
 :meth:`ActionItems.to_world` undoes it exactly (Eq. 5), which is how generators return motions
 in the original world frame.
 
-Stand-in choices (docs/marionet.md):
-
-- **in-place classes** are data-driven: a class is in place when the median, over its training
-  clips, of the clip's net root ground-plane displacement (first to last frame) is below
-  ``in_place_threshold_m`` (0.3 m), unless ``in_place_classes`` lists them explicitly;
-- **next tag**: the stand-in's clips are single actions with no successor, so the successor
-  is defined like a motion graph: the label of the *other* clip (from ``next_tag_pool``, the
-  training clips by default) whose first pose is nearest to this item's last action pose, both
-  poses heading- and position-normalised (joints relative to the root, rotated to face +Z),
-  Euclidean distance on the flattened (J·3) joint vector; deterministic (ties → lowest index).
+This module holds the containers every single-action family shares: :class:`ItemsConfig` (how
+items are cut), :class:`ActionItems`, :class:`GeneratedItems` (a generator's output, or the real
+actions shaped like one), :func:`pad_last` (the padding convention: frames past an item's
+length repeat its last one) and :func:`condition_items` (conditions from arbitrary initial
+motions, e.g. a multi-action chain's last generated frames, Alg. 1).  How items are *made* is
+:mod:`repro.data.contexts` (Neural Marionette's, from composed sequences),
+:meth:`repro.data.pairs.PairItems.as_action_items` (MultiAct's ``S_c``) and
+:meth:`repro.data.odmo_items.WindowItems.action_items` (ODMO's windows).
 
 Units: metres, radians, frames at the ClipSet's fps.
 """
@@ -35,25 +33,25 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal, Sequence
 
-import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, field_validator
 
 from repro.config_errors import resolve_config
-from repro.errors import ConfigError, DataError
+from repro.data.item_sources import ItemSet
 from repro.keys import content_key
 from repro.motion.canon import CanonParams, marionette_normalize, uncanonicalize
-from repro.motion.heading import body_heading
 from repro.motion.motion import Motion
-from repro.motion.rotations import quat_to_matrix
-from repro.motion.skeleton import Skeleton, forward_kinematics
+
+__all__ = ["ITEMS_VERSION", "ItemsConfig", "ActionItems", "GeneratedItems", "pad_last",
+           "condition_items"]
 
 #: Bumped when the construction of items changes (enters ``ActionItems.key``).
 ITEMS_VERSION = 1
 
 
 class ItemsConfig(BaseModel):
-    """How items are cut from clips (every field enters the items' key)."""
+    """How items are cut from clips (every field enters the items' key; the in-place classes
+    and the same-clip next tag are :mod:`repro.data.contexts`')."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -81,7 +79,7 @@ class ItemsConfig(BaseModel):
 
 
 @dataclass(frozen=True, eq=False)
-class ActionItems:
+class ActionItems(ItemSet):
     """A batch of single-action items (module docstring), padded to ``max(lengths)`` frames.
 
     ``initial`` (N, K) and ``action`` (N, T_max) are :class:`Motion` batches in each item's
@@ -123,17 +121,8 @@ class ActionItems:
     def __len__(self) -> int:
         return self.initial.batch_size
 
-    @property
-    def skeleton(self) -> Skeleton:
-        return self.initial.skeleton
-
-    @property
-    def fps(self) -> float:
-        return self.initial.fps
-
-    @property
-    def n_classes(self) -> int:
-        return len(self.label_names)
+    def frames_basis(self) -> Motion:
+        return self.initial
 
     @property
     def n_init(self) -> int:
@@ -221,7 +210,7 @@ class GeneratedItems:
 
 
 # ---------------------------------------------------------------------------------------------
-# construction
+# padding and conditions
 
 
 def pad_last(x: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
@@ -229,129 +218,6 @@ def pad_last(x: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
     T = x.shape[1]
     t = torch.minimum(torch.arange(T, device=lengths.device)[None, :], (lengths - 1).clamp(min=0)[:, None])
     return x[torch.arange(x.shape[0], device=x.device)[:, None], t]
-
-
-def _pose_features(clips, rows: np.ndarray, axis: str) -> np.ndarray:
-    """Heading- and position-normalised joint positions (n, J·3) of packed frame ``rows``."""
-    q = torch.from_numpy(np.ascontiguousarray(clips.rotations[rows])).to(torch.float64)
-    heading = body_heading(clips.skeleton, quat_to_matrix(q), axis=axis).numpy()
-    j = np.asarray(clips.joints[rows], dtype=np.float64) - np.asarray(clips.root[rows],
-                                                                      dtype=np.float64)[:, None]
-    c, s = np.cos(-heading)[:, None], np.sin(-heading)[:, None]
-    x, z = j[..., 0], j[..., 2]
-    out = np.stack([c * x + s * z, j[..., 1], -s * x + c * z], axis=-1)  # Ry(-heading)
-    return out.reshape(len(rows), -1)
-
-
-def in_place_classes(clips, config: ItemsConfig | None = None) -> tuple[str, ...]:
-    """Names of the in-place classes (module docstring), from ``config.in_place_classes`` or
-    the median net ground-plane root displacement of each class's training clips."""
-    config = config or ItemsConfig()
-    names = tuple(clips.label_names)
-    if config.in_place_classes is not None:
-        unknown = [c for c in config.in_place_classes if c not in names]
-        if unknown:
-            raise ConfigError(f"items config: in_place_classes {unknown} are not classes of "
-                              f"{clips.name!r} ({', '.join(names)})")
-        return tuple(c for c in names if c in config.in_place_classes)
-    from repro.data.clipset import TRAIN
-
-    out = []
-    for lab, name in enumerate(names):
-        idx = clips.indices(split=TRAIN, label=lab)
-        if idx.size == 0:
-            idx = clips.indices(label=lab)
-        if idx.size == 0:
-            continue
-        first = clips.root[clips.starts[idx]][:, [0, 2]].astype(np.float64)
-        last = clips.root[clips.starts[idx] + clips.lengths[idx] - 1][:, [0, 2]].astype(np.float64)
-        if float(np.median(np.linalg.norm(last - first, axis=1))) < config.in_place_threshold_m:
-            out.append(name)
-    return tuple(out)
-
-
-def next_tags(clips, item_clips: np.ndarray, end_frames: np.ndarray,
-              config: ItemsConfig | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Motion-graph successors (module docstring): for each clip ``item_clips[i]`` whose action
-    ends at its frame ``end_frames[i]``, the (label, clip index) of the nearest other clip's
-    first pose.  Candidates: training clips (``next_tag_pool="train"``) or all clips."""
-    from scipy.spatial import cKDTree
-
-    from repro.data.clipset import TRAIN
-
-    config = config or ItemsConfig()
-    pool = clips.indices(split=TRAIN) if config.next_tag_pool == "train" else clips.indices()
-    if pool.size < 2:
-        pool = clips.indices()
-    if pool.size < 2:
-        raise DataError(f"ClipSet {clips.name!r}: a next tag needs at least two clips")
-    cand = _pose_features(clips, clips.starts[pool].astype(np.int64), config.heading_axis)
-    query = _pose_features(clips, (clips.starts[item_clips] + end_frames).astype(np.int64),
-                           config.heading_axis)
-    tree = cKDTree(cand)
-    _, nn = tree.query(query, k=2)
-    first = pool[nn[:, 0]]
-    pick = np.where(first == item_clips, pool[nn[:, 1]], first)
-    return clips.labels[pick].astype(np.int64), pick.astype(np.int64)
-
-
-def build_items(clips, split: int | None = None, config: ItemsConfig | dict | None = None,
-                *, dtype: torch.dtype = torch.float32) -> ActionItems:
-    """Single-action items from the clips of ``clips`` in ``split`` (TRAIN, TEST or None for
-    all), one per clip long enough for ``n_init + min_frames`` frames (others are skipped and
-    counted in ``n_skipped``)."""
-    config = ItemsConfig.resolve(config)
-    K = config.n_init
-    idx = clips.indices(split=split)
-    lens = clips.lengths[idx].astype(np.int64)
-    keep = lens >= K + config.min_frames
-    n_skipped = int((~keep).sum())
-    idx, lens = idx[keep], lens[keep]
-    if idx.size == 0:
-        raise DataError(f"ClipSet {clips.name!r}: no clip has the {K} + {config.min_frames} "
-                        "frames an item needs")
-    T = np.minimum(lens - K, config.max_frames)
-    Tmax = int(T.max())
-    whole = Motion.from_clipset(clips, idx, 0, K + Tmax, pad=True, dtype=dtype)
-    nxt, _ = next_tags(clips, idx, K + T - 1, config)
-    return items_from_windows(whole, T, clips.labels[idx], nxt, clips, config, clip_index=idx,
-                              source=str(clips.fingerprint), n_skipped=n_skipped)
-
-
-def items_from_windows(whole: Motion, lengths, labels, next_labels, clips, config: ItemsConfig,
-                       *, clip_index, segment_index=None, source: str,
-                       n_skipped: int = 0) -> ActionItems:
-    """Items from world-frame windows ``whole`` (N, K + T_max): the first ``K = n_init`` frames
-    are the initial motion, the next ``lengths`` (N,) frames the action (frames past it are
-    padded with its last one); Marionette-normalised at ``P₋₁``; trajectory and in-place
-    classes as in the module docstring.  The one tail of :func:`build_items` and of
-    :func:`repro.data.contexts.sequence_items`."""
-    K = config.n_init
-    Tmax = whole.n_frames - K
-    lengths = torch.as_tensor(np.asarray(lengths, np.int64))
-    norm, canon = marionette_normalize(whole, anchor=K - 1, heading_axis=config.heading_axis,
-                                       translation=config.translation)
-    initial = norm.slice_time(0, K)
-    act = norm.slice_time(K, K + Tmax)
-    action = act.replace(root=pad_last(act.root, lengths), rot6d=pad_last(act.rot6d, lengths))
-
-    names = tuple(clips.label_names)
-    inplace_names = in_place_classes(clips, config)
-    inplace_ids = [names.index(n) for n in inplace_names]
-    labels = np.asarray(labels, np.int64)
-    in_place = torch.from_numpy(np.isin(labels, inplace_ids))
-    traj = action.root[..., [0, 2]].clone()
-    traj[in_place] = 0.0
-    clip_index = np.asarray(clip_index, np.int64)
-    return ActionItems(
-        initial=initial, action=action, lengths=lengths, labels=torch.from_numpy(labels),
-        next_labels=torch.from_numpy(np.asarray(next_labels, np.int64)), trajectory=traj,
-        in_place=in_place, canon=canon, label_names=names,
-        styles=torch.from_numpy(clips.styles[clip_index].astype(np.int64)),
-        clip_index=torch.from_numpy(clip_index),
-        segment_index=None if segment_index is None else
-        torch.from_numpy(np.asarray(segment_index, np.int64)),
-        in_place_classes=inplace_names, config=config, source=source, n_skipped=n_skipped)
 
 
 def condition_items(initial_world: Motion, labels: Sequence[int], next_labels: Sequence[int],
@@ -389,10 +255,3 @@ def condition_items(initial_world: Motion, labels: Sequence[int], next_labels: S
         next_labels=torch.as_tensor(next_labels, dtype=torch.long).reshape(N),
         trajectory=trajectory, in_place=ip, canon=canon, label_names=tuple(label_names),
         config=config)
-
-
-def local_joints(skeleton: Skeleton, rotmats: torch.Tensor) -> torch.Tensor:
-    """Root-relative joint positions (..., J, 3) (FK with zero root translation; the root's
-    rotation is kept)."""
-    zero = torch.zeros(rotmats.shape[:-3] + (3,), dtype=rotmats.dtype, device=rotmats.device)
-    return forward_kinematics(skeleton, rotmats, zero)
