@@ -81,6 +81,9 @@ class ItemSource(BaseModel):
     VERSION_FIELD: ClassVar[str] = "version"
     #: bumped by a specialisation when its items are built differently
     VERSION: ClassVar[int] = 1
+    #: a description without the version field is of the current version (descriptions
+    #: written before the field existed); False: it is refused like another version
+    VERSION_MAY_BE_ABSENT: ClassVar[bool] = True
     #: the ``item_kind`` of the methods that train on :meth:`train_items` as they are
     ITEM_KIND: ClassVar[str] = "actions"
 
@@ -109,7 +112,7 @@ class ItemSource(BaseModel):
         """The source :meth:`describe` wrote (a training job's config); a description of
         another construction version is a DataError."""
         d = dict(d)
-        version = d.pop(cls.VERSION_FIELD, cls.VERSION)
+        version = d.pop(cls.VERSION_FIELD, cls.VERSION if cls.VERSION_MAY_BE_ABSENT else None)
         if version != cls.VERSION:
             raise DataError(f"{cls.__name__}: items were described by {cls.VERSION_FIELD} "
                             f"{version!r}, this code builds {cls.VERSION_FIELD} {cls.VERSION}")

@@ -80,6 +80,7 @@ class WindowSource(ItemSource):
     :meth:`describe` and so the content keys of the models trained on it."""
 
     VERSION: ClassVar[int] = WINDOWS_VERSION
+    VERSION_MAY_BE_ABSENT: ClassVar[bool] = False  # every window description carries it
     ITEM_KIND: ClassVar[str] = "windows"
 
     builder: Literal["odmo_windows"] = "odmo_windows"  # the engine dispatches on this
