@@ -12,12 +12,13 @@ import json
 import sys
 from pathlib import Path
 
+from cli.commands import command_group
+
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("spec", help="validate table specs, print their JSON Schema",
-                              description="Validate table specs and scale profiles; print the "
-                              "spec JSON Schema.")
-    sub = p.add_subparsers(dest="spec_command", metavar="SUBCOMMAND")
+    sub = command_group(subparsers, "spec", "validate table specs, print their JSON Schema",
+                        "Validate table specs and scale profiles; print the spec JSON Schema.",
+                        "spec_command")
 
     c = sub.add_parser("check", help="validate specs (all of tables/ when no file is given)")
     c.add_argument("files", nargs="*", metavar="FILE",
@@ -28,8 +29,6 @@ def register(subparsers) -> None:
     s = sub.add_parser("schema", help="print the JSON Schema of a table spec")
     s.add_argument("--scales", action="store_true", help="the schema of tables/scales.toml instead")
     s.set_defaults(func=_schema)
-
-    p.set_defaults(func=lambda args: (p.print_help(), 0)[1])
 
 
 def _check(args) -> int:

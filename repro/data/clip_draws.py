@@ -57,8 +57,9 @@ def per_class_clips(clipset, pool, per_class: int, rng: np.random.Generator) -> 
     replacement within the class, classes in index order (the clips of ODMO's real sets,
     protocols.md §3.2)."""
     pool = np.asarray(pool, dtype=np.int64)
+    labels = np.asarray(clipset.labels[pool])
     clips = []
-    for c in np.unique(clipset.labels[pool]):
-        members = pool[clipset.labels[pool] == c]
+    for c in np.unique(labels):
+        members = pool[labels == c]
         clips.append(members[rng.integers(0, members.size, size=per_class)])
     return np.concatenate(clips)

@@ -257,9 +257,6 @@ def evaluator_text(ev: dict | None, dataset: str | None = None) -> str | None:
         s += f", heading {ev['heading']}"
     for k, v in sorted((ev.get("settings") or {}).items()):
         s += f", {k} {v}"
-    info = names.DATASETS.get(dataset) if dataset is not None else None
-    if dataset is None or (info is not None and info.standin):
-        where = "the stand-in"
-    else:
-        where = f"{dataset} (own data)" if info is None else dataset
+    kind = names.STANDIN if dataset is None else names.dataset_kind(dataset)
+    where = {names.STANDIN: "the stand-in", names.OWN: f"{dataset} (own data)"}.get(kind, dataset)
     return s + f" (trained by the harness on {where})"

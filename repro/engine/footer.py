@@ -38,9 +38,9 @@ def data_words(dataset: str) -> str:
     stand-in; any other name as it is."""
     from repro.specs import names
 
-    info = names.DATASETS.get(dataset)
-    if info is not None:
-        return f"STAND-IN {dataset}" if info.standin else dataset
+    kind = names.dataset_kind(dataset)
+    if kind != names.OWN:
+        return f"STAND-IN {dataset}" if kind == names.STANDIN else dataset
     try:
         from repro.data.dataset_registration import spec_file_of
 

@@ -31,6 +31,12 @@ CANCELLED = "cancelled"  # not started because another job failed or the run was
 
 
 # ---------------------------------------------------------------------- running one job
+def _thread_env(n: int) -> None:
+    """``n`` threads for torch, MKL and OpenMP not imported yet (they read these at import)."""
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ[var] = str(n)
+
+
 @contextmanager
 def _thread_count(threads: int | None):
     """Compute with ``threads`` torch and BLAS/OpenMP threads for the duration (nothing when
@@ -47,8 +53,7 @@ def _thread_count(threads: int | None):
     if torch is not None:
         torch.set_num_threads(n)
     else:
-        for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-            os.environ[var] = str(n)
+        _thread_env(n)
     try:
         with threadpool_limits(limits=n):
             yield
@@ -139,8 +144,7 @@ def worker_init(q, stop, threads: int | None) -> None:
     _QUEUE, _STOP = q, stop
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # idle workers ignore Ctrl-C
     if threads:
-        for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-            os.environ[var] = str(int(threads))
+        _thread_env(int(threads))
     _put(("pid", os.getpid()))
 
 

@@ -248,8 +248,23 @@ class _RowMethod:
     train_config: dict    # ``config`` less the inference-time fields
     train_module: str
     inference: tuple[str, ...]
-    components: dict[str, str]  # a composite's components: name -> method
-    component_configs: dict[str, tuple[str, dict]]  # name -> (method, scaled config)
+    # a composite's components: name -> (method, scaled config); empty for any other method
+    component_configs: dict[str, tuple[str, dict]]
+
+
+def _scaled_configs(what: str, methods, scale,
+                    budget: float) -> tuple[dict[str, tuple[str, dict]] | None, str | None]:
+    """``(name, method)`` pairs resolved to name -> (method, its profile config with epochs
+    scaled by ``budget``), or (None, reason) naming the first ``what`` that is not built."""
+    from repro.engine.evidence import scale_epochs
+
+    out: dict[str, tuple[str, dict]] = {}
+    for name, m in methods:
+        c, why = _method_config(m, scale, {})
+        if c is None:
+            return None, f"{what} {name!r}: {why}"
+        out[name] = (m, scale_epochs(c, budget))
+    return out, None
 
 
 def _row_method(row, scale, budget: float) -> tuple[_RowMethod | None, str | None]:
@@ -272,15 +287,13 @@ def _row_method(row, scale, budget: float) -> tuple[_RowMethod | None, str | Non
     train_module = generator_class(train_method).__module__
     # a composite (ACTOR + SSMCT, ACTOR + interpolation) trains nothing of its own: its
     # components are trained as those methods are for any other row (shared jobs)
-    components = dict(getattr(cls, "components", None) or {})
-    comp_cfgs = {}
-    for name, m in components.items():
-        c, why = _method_config(m, scale, {})
-        if c is None:
-            return None, f"component {name!r}: {why}"
-        comp_cfgs[name] = (m, scale_epochs(c, budget))
+    comp_cfgs, why = _scaled_configs("component",
+                                     (getattr(cls, "components", None) or {}).items(), scale,
+                                     budget)
+    if comp_cfgs is None:
+        return None, why
     return _RowMethod(row.method, mcfg, method_module, train_method, train_cfg, train_module,
-                      inference, components, comp_cfgs), None
+                      inference, comp_cfgs), None
 
 
 def _band_reasons(bands: list[Band]) -> str:
@@ -319,17 +332,13 @@ def _needed_models(proto, takes_models: bool, rm: _RowMethod, scale,
     """Extra trained models the protocol needs for this row (MultiAct: ACTOR's previous
     motions and first step), then a composite's components: name -> (method, config); or
     (None, reason) when one is not built."""
-    from repro.engine.evidence import scale_epochs
-
     needed: dict[str, tuple[str, dict]] = {}
     if takes_models and hasattr(proto, "extra_models"):
-        for name, m in sorted(proto.extra_models(rm.method, rm.config).items()):
-            c, why = _method_config(m, scale, {})
-            if c is None:
-                return None, f"model {name!r}: {why}"
-            needed[name] = (m, scale_epochs(c, budget))
-    if rm.components:
-        needed.update(rm.component_configs)
+        needed, why = _scaled_configs("model", sorted(proto.extra_models(rm.method, rm.config)
+                                                      .items()), scale, budget)
+        if needed is None:
+            return None, why
+    needed.update(rm.component_configs)
     return needed, None
 
 
@@ -338,7 +347,7 @@ def _train_jobs(pl: _Planner, b: Band, rm: _RowMethod, needed: dict, seed: int) 
     then the needed models."""
     from repro.models.base import generator_class
 
-    own = [] if rm.components else [_train_job(pl, b, seed, rm.train_method, rm.train_config,
+    own = [] if rm.component_configs else [_train_job(pl, b, seed, rm.train_method, rm.train_config,
                                                rm.train_module)]
     return own + [_train_job(pl, b, seed, m, c, generator_class(m).__module__)
                   for _, (m, c) in needed.items()]
@@ -353,7 +362,8 @@ def _generate_and_measure(pl: _Planner, row, rm: _RowMethod, b: Band, needed: di
     for r, s in enumerate(pl.seeds):
         gcfg = {**base, "replicate": r, "need": sorted(set(b.metrics.values()))}
         gfps = fps
-        if rm.train_method != rm.method or rm.components or (takes_models and rm.inference):
+        if (rm.train_method != rm.method or rm.component_configs
+                or (takes_models and rm.inference)):
             gcfg.update(method=rm.method, method_config=rm.config)
         if needed:
             gcfg["models"] = list(needed)

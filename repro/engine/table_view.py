@@ -111,9 +111,8 @@ def _standin(dataset: str | None) -> str | None:
 
     if dataset is None:
         return None
-    info = names.DATASETS.get(dataset)
     # a declared data set (repro.data.dataset_spec) is never a paper's: a stand-in too
-    return dataset if info is None or info.standin else None
+    return None if names.dataset_kind(dataset) == names.PAPER else dataset
 
 
 def _paper_title(spec) -> str:

@@ -178,7 +178,7 @@ def with_evidence(plan: TablePlan, cl, claim: dict, budgets: dict) -> dict:
     evs = []
     for b in plan.bands:
         if b.implemented and set(b.columns) & set(cl.column):
-            t = evaluator_text(b.evaluator, getattr(plan, "dataset", None))
+            t = evaluator_text(b.evaluator, plan.dataset)
             if t and t not in evs:
                 evs.append(t)
     ev = claim_evidence(rows=list(cl.involved_rows()), budgets=budgets, retrain=plan.retrain,

@@ -12,30 +12,24 @@ Public API (imported lazily, so ``import repro.eval`` stays light):
 
 from __future__ import annotations
 
-import importlib
+from repro.lazy_exports import lazy_getattr
 
 _EXPORTS = {
-    "Evaluator": "repro.eval.evaluator",
-    "get_evaluator": "repro.eval.provider",
-    "evaluator_key": "repro.eval.provider",
-    "evaluator_stats": "repro.eval.provider",
-    "test_accuracy": "repro.eval.training",
-    "train_evaluator": "repro.eval.training",
-    "TestAccuracy": "repro.eval.training",
-    "real_rows": "repro.eval.real",
-    "check_real_gate": "repro.eval.gate",
-    "gate_failures": "repro.eval.gate",
-    "RealGateError": "repro.eval.gate",
-    "resolve_settings": "repro.eval.settings",
-    "EvaluatorSettings": "repro.eval.settings",
-    "KINDS": "repro.eval.settings",
+    "Evaluator": "evaluator",
+    "get_evaluator": "provider",
+    "evaluator_key": "provider",
+    "evaluator_stats": "provider",
+    "test_accuracy": "training",
+    "train_evaluator": "training",
+    "TestAccuracy": "training",
+    "real_rows": "real",
+    "check_real_gate": "gate",
+    "gate_failures": "gate",
+    "RealGateError": "gate",
+    "resolve_settings": "settings",
+    "EvaluatorSettings": "settings",
+    "KINDS": "settings",
 }
 
 __all__ = sorted(_EXPORTS)
-
-
-def __getattr__(name: str):
-    mod = _EXPORTS.get(name)
-    if mod is None:
-        raise AttributeError(f"module 'repro.eval' has no attribute {name!r}")
-    return getattr(importlib.import_module(mod), name)
+__getattr__ = lazy_getattr(__name__, _EXPORTS)

@@ -271,24 +271,17 @@ class MACVAE(Generator):
         acc_t = target_j[:, 2:] - 2 * target_j[:, 1:-1] + target_j[:, :-2]
         return F.l1_loss(acc[ok], acc_t[ok])
 
-    def _optimizer(self):
+    def _optimizer(self, params):
         cfg = self.config
         cls = kernels.adamw if cfg.optimizer == "adamw" else kernels.adam
-        return cls(self.net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+        return cls(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
 
     def fit(self, train_items: PairItems, *, seed: int, ckpt_dir: str | Path | None = None,
             on_epoch: Callable[[int, dict[str, float]], None] | None = None,
             val_items: PairItems | None = None):
         """Train through the one training loop; initial weights from ``seed``."""
-        self._check_items(train_items)
-        if val_items is not None:
-            self._check_items(val_items)
-        self._build(derive_seed(seed, self.method_id, "init"))
-        data = self._tensors(train_items)
-        val_data = None if val_items is None else self._tensors(val_items)
-        return self._fit_batches(train_items, data, self._optimizer(), seed=seed,
-                                 ckpt_dir=ckpt_dir, on_epoch=on_epoch, val_items=val_items,
-                                 val_data=val_data)
+        return self._fit_items(train_items, type(self)._check_items, self._optimizer, seed=seed,
+                               ckpt_dir=ckpt_dir, on_epoch=on_epoch, val_items=val_items)
 
     # -- inference -----------------------------------------------------------------------------
     def _noise(self, seed: int, N: int) -> torch.Tensor:

@@ -99,8 +99,8 @@ def data_mark(name: str) -> str:
     is not a stand-in the harness ships, and never called one)."""
     from repro.specs import names
 
-    info = names.DATASETS.get(name)
-    return f"STAND-IN DATA: {name}" if info is not None and info.standin else f"OWN DATA: {name}"
+    return (f"STAND-IN DATA: {name}" if names.dataset_kind(name) == names.STANDIN
+            else f"OWN DATA: {name}")
 
 
 #: Separator of a figure's per-x cell ids: ``"overall.acc@3"`` is column overall.acc at x = 3.

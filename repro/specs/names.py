@@ -276,3 +276,14 @@ def check_name(kind: str, name: str, *, file=None, location: str | None = None,
 
 def standin_datasets() -> tuple[str, ...]:
     return tuple(d for d, info in DATASETS.items() if info.standin)
+
+
+STANDIN, PAPER, OWN = "stand-in", "paper", "own"
+
+
+def dataset_kind(name: str) -> str:
+    """What a data set is: :data:`STANDIN` (a built-in stand-in the harness ships or
+    prepares), :data:`PAPER` (a paper's, in :data:`DATASETS`) or :data:`OWN` (any other name:
+    one a data-set spec declares, never called a stand-in; issue 28)."""
+    info = DATASETS.get(name)
+    return OWN if info is None else STANDIN if info.standin else PAPER

@@ -11,8 +11,8 @@ from __future__ import annotations
 from repro.lazy_exports import lazy_getattr
 
 _EXPORTS = {
-    "Store": "objects", "StoredObject": "objects", "ObjectInfo": "objects",
-    "CorruptObject": "objects", "VerifyReport": "objects", "GcReport": "objects",
+    "Store": "objects", "StoredObject": "object_files", "ObjectInfo": "object_files",
+    "CorruptObject": "object_files", "VerifyReport": "object_files", "GcReport": "object_files",
     "RunRecorder": "runs", "collect_garbage": "runs", "RunRecord": "run_files",
     "load_run": "run_files", "resolve_run": "run_files", "QUEUED": "run_files",
     "RUNNING": "run_files", "FINISHED": "run_files", "FAILED": "run_files",

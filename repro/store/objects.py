@@ -48,8 +48,6 @@ from typing import Any
 
 from repro.keys import sha256_file
 from repro.store.atomic import atomic_write_json, fsync_dir, jsonable, utc_now
-# repro.store's lazy names find the records here (its __init__, in every job's source hash,
-# still maps them to this module)
 from repro.store.object_files import (KEY_RE, MANIFEST, STORE_SCHEMA, CorruptObject, GcReport,
                                       ObjectInfo, StoredObject, VerifyReport, check_key,
                                       payload_files, rmtree, tree_size)

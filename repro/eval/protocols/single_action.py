@@ -61,14 +61,12 @@ from pydantic import Field
 
 from repro.data.action_items import ActionItems, GeneratedItems
 from repro.data.clipset import TEST
-from repro.data.item_sources import cached
 from repro.errors import ConfigError, DataError
 from repro.eval.memorisation import HARNESS_METRICS
 from repro.eval.protocols import register
 from repro.eval.protocols.marionette_common import MarionetteParams, MarionetteProtocol
 from repro.eval.protocols.marionette_common import read_samples, write_samples
 from repro.eval.protocols.marionette_common import evaluation_clips  # noqa: F401 (re-exported)
-from repro.keys import content_key
 from repro.seeding import derive_seed, numpy_rng
 
 SAVE_FORMAT = 1
@@ -146,12 +144,10 @@ class SingleAction(MarionetteProtocol):
     def test_items(self, clipset) -> ActionItems:
         """The scored items: one per test action, at most ``samples_per_class`` per class."""
         p = self.params
-        key = content_key({"source": self.item_source().describe(), "data": clipset.fingerprint,
-                           "samples_per_class": p.samples_per_class,
-                           "selection_seed": p.selection_seed})
+        src = self.item_source()
 
         def build():
-            items = self.item_source().items(clipset, TEST)
+            items = src.items(clipset, TEST)
             present = set(np.unique(items.labels.numpy()).tolist())
             missing = [items.label_names[c] for c in range(items.n_classes) if c not in present]
             if missing:
@@ -159,7 +155,9 @@ class SingleAction(MarionetteProtocol):
                                 f"no item of {', '.join(missing)} (multimodality needs every tag)")
             return self._select(items)
 
-        return cached(key, build)
+        return src.cached_build("single_action_test", clipset, build,
+                                samples_per_class=p.samples_per_class,
+                                selection_seed=p.selection_seed)
 
     def _select(self, items: ActionItems) -> ActionItems:
         cap = self.params.samples_per_class
