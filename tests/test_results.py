@@ -369,6 +369,23 @@ def test_medium_before_26_history_covers_the_marionette_specs():
     assert {_run(p)[0]["table"] for p in MEDIUM_BEFORE_26} == MARIONETTE
 
 
+MA_MEDIUM_BEFORE_26 = _records("multiact-medium-before-26")
+
+
+@pytest.mark.parametrize("path", MA_MEDIUM_BEFORE_26, ids=[p.name for p in MA_MEDIUM_BEFORE_26])
+def test_multiact_medium_records_before_issue_26_are_their_values(path):
+    """The MultiAct medium records until issue 26 (composer version 1, unpinned, 2026-12-01;
+    replaced by records of composer version 2 under the kernel pin): kept as history, each
+    consistent with its own raw values."""
+    rj, summary = _run(path)
+    assert rj["status"] == "FINISHED" and rj["scale"] == "medium" and rj["dataset"] == "bandai2"
+    _cells_are_their_values(path, summary, len(rj["config"]["seeds"]))
+
+
+def test_multiact_medium_before_26_history_covers_the_multiact_specs():
+    assert {_run(p)[0]["table"] for p in MA_MEDIUM_BEFORE_26} == MULTIACT
+
+
 BEFORE_27 = {"quick": _records("odmo-quick-before-27"), "medium": _records("odmo-medium-before-27")}
 BEFORE_27_ALL = [(s, p) for s, ps in BEFORE_27.items() for p in ps]
 
