@@ -6,7 +6,7 @@ per request times 7 retries.  Before either is asked, :func:`exchange` opens the
 sends a few bytes and reads the first bytes of the reply, all within one deadline
 (:data:`PROBE_TIMEOUT_S`), so a silent listener or a server of another kind is refused in one
 line in seconds.  The callers (:mod:`repro.engine.ray_executor`,
-:mod:`repro.report.mlflow_store`) say what the reply must look like.
+:mod:`repro.exporters.mlflow_store`) say what the reply must look like.
 """
 
 from __future__ import annotations

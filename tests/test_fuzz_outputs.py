@@ -385,7 +385,7 @@ def _fake_rs():
 
 def _write(writer: str, text: str):
     if writer == "export":
-        from repro.report.export import export_samples
+        from repro.exporters.samples import export_samples
 
         return export_samples(_fake_rs(), text, replicate="all")  # no rows: export.json only
     if writer == "strips":

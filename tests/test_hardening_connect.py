@@ -271,7 +271,7 @@ def test_mlflow_export_to_a_plain_http_server_says_no_tracking_server(plain_http
 
 @needs_mlflow
 def test_mlflow_http_requests_get_a_bounded_timeout_and_retries(finished_run):
-    from repro.report.mlflow_store import HTTP_MAX_RETRIES, HTTP_TIMEOUT_S, _import_mlflow
+    from repro.exporters.mlflow_store import HTTP_MAX_RETRIES, HTTP_TIMEOUT_S, _import_mlflow
 
     _import_mlflow("http://127.0.0.1:5000")
     assert os.environ["MLFLOW_HTTP_REQUEST_TIMEOUT"] == str(HTTP_TIMEOUT_S) == "30"
@@ -301,7 +301,7 @@ def test_mlflow_export_refuses_a_folder_that_is_no_store(tmp_path, finished_run,
 
 @needs_mlflow
 def test_the_mlflow_note_carries_no_html(tmp_path, finished_run, monkeypatch):
-    from repro.report import mlflow_export
+    from repro.exporters import mlflow_runs as mlflow_export
 
     def artifacts(rec, out, keys, *, pictures=True):
         (out / "table").mkdir(parents=True)

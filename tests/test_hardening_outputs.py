@@ -374,7 +374,7 @@ def test_a_huge_sparse_values_file_is_refused_without_reading_it(tmp_path):
 
 
 def test_runs_export_all_skips_a_run_whose_values_are_damaged(capsys, monkeypatch):
-    from repro.report import mlflow_export
+    from repro.exporters import mlflow_runs as mlflow_export
 
     good, bad = _run(0), _run(1)
     _damage(bad.path, "replicate")

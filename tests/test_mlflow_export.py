@@ -188,7 +188,7 @@ def test_awkward_names_and_values_read_back_through_the_key_mapping(store, tmp_p
     import mlflow
     from mlflow.tracking import MlflowClient
 
-    from repro.report.mlflow_export import key_part
+    from repro.exporters.mlflow_runs import key_part
 
     # the mapping: plain names unchanged, others cleaned + a hash of the original, never equal
     assert key_part("marionet") == "marionet" and key_part("acc.overall") == "acc.overall"
@@ -230,7 +230,7 @@ def test_awkward_names_and_values_read_back_through_the_key_mapping(store, tmp_p
 def test_names_whose_keys_collide_are_refused_not_merged(monkeypatch):
     """Two names mapped to one key would merge two cells into one metric: refused (forced
     here with a lossy mapping; the real one collides only through a sha256 prefix)."""
-    import repro.report.mlflow_export as mx
+    import repro.exporters.mlflow_runs as mx
     from repro.errors import DataError
     from repro.store.runs import load_run
 

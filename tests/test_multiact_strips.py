@@ -1,4 +1,4 @@
-"""Strips and export of MultiAct's bands (repro.report.pair_strips, repro.report.export) on
+"""Strips and export of MultiAct's bands (repro.report.pair_strips, repro.exporters.samples) on
 synthetic pairs, fake samples shaped as the protocols save them (MultiActSamples) and a fake
 band: panel counts, segment boundaries, the S_p each row shows, every row drawn for the same
 item, the long-term chains and their exports."""
@@ -287,7 +287,7 @@ def test_long_term_shape_mismatch(plan):
 
 
 def test_export_pairs_npz_and_bvh(items, pair_band, tmp_path):
-    from repro.report.export import export_samples
+    from repro.exporters.samples import export_samples
 
     rec = export_samples(_rs(pair_band), tmp_path / "npz", row="real", item=2, fmt="npz")
     (f,) = rec["files"]
@@ -307,7 +307,7 @@ def test_export_pairs_npz_and_bvh(items, pair_band, tmp_path):
 
 
 def test_export_long_term_chain(plan, lt_band, tmp_path):
-    from repro.report.export import export_samples
+    from repro.exporters.samples import export_samples
 
     rec = export_samples(_rs(lt_band), tmp_path, row="multiact", item=1, fmt="npz")
     (f,) = rec["files"]

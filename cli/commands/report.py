@@ -124,7 +124,7 @@ def cmd_strips(args) -> int:
 
 def cmd_export(args) -> int:
     from repro.engine.run_samples import describe, run_samples
-    from repro.report.export import export_samples
+    from repro.exporters.samples import export_samples
 
     from repro.errors import ConfigError
 

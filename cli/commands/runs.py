@@ -330,7 +330,7 @@ def _export(args: argparse.Namespace) -> int:
     import sys
 
     from repro.errors import ConfigError
-    from repro.report.mlflow_export import export_runs
+    from repro.exporters.mlflow_runs import export_runs
 
     if bool(args.runs) == bool(args.all):
         raise ConfigError("runs export: name the runs (RUN...) or give --all, not both")

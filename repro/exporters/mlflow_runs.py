@@ -49,7 +49,7 @@ here and only when an export runs.  mlflow-skinny opens file stores (a folder, `
 tracking servers (``http(s)://``); a ``sqlite:`` or other SQL store needs the full ``mlflow``
 package.  The store is opened and checked (an existing folder that is no store, a server that
 does not answer within seconds, the variables MLflow is given) by
-:mod:`repro.report.mlflow_store`.
+:mod:`repro.exporters.mlflow_store`.
 """
 
 from __future__ import annotations
@@ -67,7 +67,7 @@ from pathlib import Path
 from typing import Any
 
 from repro.errors import ConfigError, DataError, ReproError
-from repro.report.mlflow_store import (  # noqa: F401 (also this module's names, as before)
+from repro.exporters.mlflow_store import (  # noqa: F401 (also this module's names, as before)
     INSTALL_HINT,
     RUN_ID_TAG,
     SQL_SCHEMES,

@@ -1,5 +1,5 @@
 """The MLflow tracking store an export writes into (``--mlflow URI``), opened and checked before
-anything is written: split from :mod:`repro.report.mlflow_export`, which says what is written.
+anything is written: split from :mod:`repro.exporters.mlflow_runs`, which says what is written.
 
 Checks, each a one-line :class:`~repro.errors.ConfigError` (exit 2) before MLflow is asked:
 
