@@ -226,22 +226,7 @@ def parse_asf(data: bytes | str, source: str | Path = "<asf>") -> Asf:
             continue
         key = toks[0].lower()
         if key.startswith(":"):
-            if cur is not None:
-                raise DataError(f"bone block opened at line {cur['line']} has no 'end'", src, ln)
-            if section == "hierarchy" and hier == "open":
-                raise DataError(":hierarchy has no 'end'", src, ln)
-            if key in seen and key in (":units", ":root", ":bonedata", ":hierarchy"):
-                raise DataError(f"section {key} appears twice", src, ln)
-            seen.add(key)
-            section = key[1:]
-            if section in ("version", "name"):
-                info[section] = " ".join(toks[1:]) or None
-            elif section == "documentation":
-                doc.append(line.strip()[len(toks[0]):].strip())
-            elif section not in ("units", "root", "bonedata", "hierarchy"):
-                section = "skip"
-            elif len(toks) > 1:
-                raise DataError(f"unexpected {_q(toks[1])} after {toks[0]}", src, ln)
+            section = _asf_section(toks, line, section, cur, hier, info, doc, seen, src, ln)
         elif section in (None, "version", "name"):
             raise DataError(f"unexpected {_q(toks[0])} outside any section", src, ln)
         elif section == "units":
@@ -264,58 +249,101 @@ def parse_asf(data: bytes | str, source: str | Path = "<asf>") -> Asf:
             else:
                 raise DataError(f"bad :root entry {_q(line.strip())}", src, ln)
         elif section == "bonedata":
-            if cur is None:
-                if key != "begin" or len(toks) != 1:
-                    raise DataError(f"expected 'begin' of a bone block, found {_q(toks[0])}", src, ln)
-                cur, last_key = {"line": ln}, None
-            elif key == "end" and len(toks) == 1:
-                bone = _bone(cur, src)
-                if bone.name in bones or bone.name == "root":
-                    raise DataError(f"bone name {_q(bone.name)} is used twice (or is 'root')", src,
-                                    cur["line"])
-                bones[bone.name], cur = bone, None
-            elif last_key == "limits" and key not in _BONE_KEYS:  # limits continued
-                cur["limits"] += _floats(toks, None, "limits", src, ln, finite=False)
-            elif key not in _BONE_KEYS:
-                raise DataError(f"unknown bone field {_q(toks[0])}", src, ln)
-            elif key in cur:
-                raise DataError(f"bone field {key!r} is given twice", src, ln)
-            else:
-                last_key, cur[key], args = key, True, toks[1:]
-                if key == "id":
-                    if len(args) != 1 or not args[0].isdecimal() or len(args[0]) > 9:
-                        raise DataError("bone id must be one non-negative integer", src, ln)
-                    cur["id"] = int(args[0])
-                elif key == "name":
-                    if len(args) != 1:
-                        raise DataError("bone name must be one word", src, ln)
-                    cur["name"] = args[0]
-                elif key in ("direction", "length"):
-                    cur[key] = _floats(args, 3 if key == "direction" else 1, key, src, ln)
-                elif key == "axis":
-                    if len(args) != 4:
-                        raise DataError("axis: expected three angles and an order such as XYZ",
-                                        src, ln)
-                    cur["axis"] = (_floats(args[:3], 3, "axis", src, ln),
-                                   _euler_order(args[3:], "axis", src, ln))
-                elif key == "dof":
-                    cur["dof"] = (_dofs(args, BONE_DOFS, "dof", src, ln), ln)
-                elif key == "limits":
-                    cur["limits"] = _floats(args, None, "limits", src, ln, finite=False)
-                    cur["limits_line"] = ln
+            cur, last_key = _bonedata_line(key, toks, cur, last_key, bones, src, ln)
         elif section == "hierarchy":
-            if hier == "before":
-                if key != "begin" or len(toks) != 1:
-                    raise DataError(f"expected 'begin' of :hierarchy, found {_q(toks[0])}", src, ln)
-                hier = "open"
-            elif hier == "done":
-                raise DataError(f"unexpected {_q(toks[0])} after the end of :hierarchy", src, ln)
-            elif key == "end" and len(toks) == 1:
-                hier = "done"
-            elif len(toks) < 2:
-                raise DataError(f"hierarchy line names {_q(toks[0])} but no children", src, ln)
-            else:
-                edges.extend((toks[0], c, ln) for c in toks[1:])
+            hier = _hierarchy_line(key, toks, hier, edges, src, ln)
+    _check_asf_end(lines, cur, seen, hier, info, src)
+    parent, order = _tree(bones, edges, src)
+    return Asf(src, info["version"], info["name"], info["mass"], info["length"], info["angle"],
+               "\n".join(doc).strip(), info["order"], info["axis"], info["position"],
+               info["orientation"], bones, parent, order)
+
+
+def _asf_section(toks, line, section, cur, hier, info, doc, seen, src, ln) -> str:
+    """A ``:section`` line (the bone block and hierarchy before it closed): the section now read."""
+    key = toks[0].lower()
+    if cur is not None:
+        raise DataError(f"bone block opened at line {cur['line']} has no 'end'", src, ln)
+    if section == "hierarchy" and hier == "open":
+        raise DataError(":hierarchy has no 'end'", src, ln)
+    if key in seen and key in (":units", ":root", ":bonedata", ":hierarchy"):
+        raise DataError(f"section {key} appears twice", src, ln)
+    seen.add(key)
+    section = key[1:]
+    if section in ("version", "name"):
+        info[section] = " ".join(toks[1:]) or None
+    elif section == "documentation":
+        doc.append(line.strip()[len(toks[0]):].strip())
+    elif section not in ("units", "root", "bonedata", "hierarchy"):
+        section = "skip"
+    elif len(toks) > 1:
+        raise DataError(f"unexpected {_q(toks[1])} after {toks[0]}", src, ln)
+    return section
+
+
+def _bonedata_line(key, toks, cur, last_key, bones, src, ln):
+    """A ``:bonedata`` line: ``begin`` opens a bone block (``cur``), ``end`` adds it to ``bones``,
+    others are its fields (``limits`` may span lines).  Returns the new ``(cur, last_key)``."""
+    if cur is None:
+        if key != "begin" or len(toks) != 1:
+            raise DataError(f"expected 'begin' of a bone block, found {_q(toks[0])}", src, ln)
+        return {"line": ln}, None
+    if key == "end" and len(toks) == 1:
+        bone = _bone(cur, src)
+        if bone.name in bones or bone.name == "root":
+            raise DataError(f"bone name {_q(bone.name)} is used twice (or is 'root')", src,
+                            cur["line"])
+        bones[bone.name] = bone
+        return None, last_key
+    if last_key == "limits" and key not in _BONE_KEYS:  # limits continued
+        cur["limits"] += _floats(toks, None, "limits", src, ln, finite=False)
+    elif key not in _BONE_KEYS:
+        raise DataError(f"unknown bone field {_q(toks[0])}", src, ln)
+    elif key in cur:
+        raise DataError(f"bone field {key!r} is given twice", src, ln)
+    else:
+        last_key, cur[key], args = key, True, toks[1:]
+        if key == "id":
+            if len(args) != 1 or not args[0].isdecimal() or len(args[0]) > 9:
+                raise DataError("bone id must be one non-negative integer", src, ln)
+            cur["id"] = int(args[0])
+        elif key == "name":
+            if len(args) != 1:
+                raise DataError("bone name must be one word", src, ln)
+            cur["name"] = args[0]
+        elif key in ("direction", "length"):
+            cur[key] = _floats(args, 3 if key == "direction" else 1, key, src, ln)
+        elif key == "axis":
+            if len(args) != 4:
+                raise DataError("axis: expected three angles and an order such as XYZ", src, ln)
+            cur["axis"] = (_floats(args[:3], 3, "axis", src, ln),
+                           _euler_order(args[3:], "axis", src, ln))
+        elif key == "dof":
+            cur["dof"] = (_dofs(args, BONE_DOFS, "dof", src, ln), ln)
+        elif key == "limits":
+            cur["limits"] = _floats(args, None, "limits", src, ln, finite=False)
+            cur["limits_line"] = ln
+    return cur, last_key
+
+
+def _hierarchy_line(key, toks, hier, edges, src, ln) -> str:
+    """A ``:hierarchy`` line (``begin``, ``end``, a parent and children): the state it leaves."""
+    if hier == "before":
+        if key != "begin" or len(toks) != 1:
+            raise DataError(f"expected 'begin' of :hierarchy, found {_q(toks[0])}", src, ln)
+        return "open"
+    if hier == "done":
+        raise DataError(f"unexpected {_q(toks[0])} after the end of :hierarchy", src, ln)
+    if key == "end" and len(toks) == 1:
+        return "done"
+    if len(toks) < 2:
+        raise DataError(f"hierarchy line names {_q(toks[0])} but no children", src, ln)
+    edges.extend((toks[0], c, ln) for c in toks[1:])
+    return hier
+
+
+def _check_asf_end(lines, cur, seen, hier, info, src) -> None:
+    """At the end: no bone block open, every section needed, the hierarchy closed, an ``order``."""
     end = _last(lines)
     if cur is not None:
         raise DataError(f"bone block opened at line {cur['line']} has no 'end'", src, end)
@@ -326,10 +354,6 @@ def parse_asf(data: bytes | str, source: str | Path = "<asf>") -> Asf:
         raise DataError(f":hierarchy has no {'end' if hier == 'open' else 'begin'!r}", src, end)
     if info["order"] is None:
         raise DataError(":root has no 'order' line", src, end)
-    parent, order = _tree(bones, edges, src)
-    return Asf(src, info["version"], info["name"], info["mass"], info["length"], info["angle"],
-               "\n".join(doc).strip(), info["order"], info["axis"], info["position"],
-               info["orientation"], bones, parent, order)
 
 
 def _bone(cur: dict, src: str) -> AsfBone:

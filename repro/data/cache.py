@@ -179,6 +179,10 @@ def _npy_header(path: Path) -> tuple[tuple[int, ...], np.dtype, int]:
     return shape, dtype, offset + math.prod(shape) * dtype.itemsize
 
 
+class _Damaged(Exception):
+    """A problem :func:`cache_problem` reports, ``"<file>: <problem>"``, raised by its checks."""
+
+
 def cache_problem(path: Path) -> str | None:
     """Why the prepared cache folder ``path`` (see :func:`write_cache`) is damaged, as
     ``"<file>: <problem>"``; ``None`` when it reads back intact.  Used by ``repro doctor``.
@@ -191,25 +195,47 @@ def cache_problem(path: Path) -> str | None:
     first and last frame hold unit quaternions and finite positions (a file zero-filled after
     a crash fails).
     """
+    try:
+        meta, n_clips, n_joints, n_labels, n_styles = _meta_problem(path)
+        heads = _header_problem(path)
+        small = _clip_arrays(path, heads, n_clips)
+        frames = _clip_array_problem(path, meta, small, n_clips, n_labels, n_styles)
+        _frame_array_problem(path, heads, frames, n_joints)
+    except _Damaged as e:
+        return str(e)
+    return None
+
+
+def _meta_problem(path: Path) -> tuple[dict, int, int, int, int]:
+    """``meta.json`` parsed, this version's and naming the folder's fingerprint: (meta, clips,
+    joints, classes, styles) it names; :class:`_Damaged` otherwise."""
     meta_p = path / "meta.json"
     try:
         meta = json.loads(meta_p.read_text())
     except OSError as e:
-        return f"{meta_p}: cannot be read ({e.strerror or e})"
+        raise _Damaged(f"{meta_p}: cannot be read ({e.strerror or e})") from None
     except ValueError as e:
-        return f"{meta_p}: not valid JSON ({e})"
+        raise _Damaged(f"{meta_p}: not valid JSON ({e})") from None
     try:
         if meta.get("schema") != SCHEMA or meta.get("prepare_version") != CACHE_VERSION:
-            return (f"{meta_p}: schema {repr(meta.get('schema'))[:20]} / prepare version "
-                    f"{repr(meta.get('prepare_version'))[:20]}, this version reads {SCHEMA} / "
-                    f"{CACHE_VERSION}")
+            raise _Damaged(f"{meta_p}: schema {repr(meta.get('schema'))[:20]} / prepare version "
+                           f"{repr(meta.get('prepare_version'))[:20]}, this version reads "
+                           f"{SCHEMA} / {CACHE_VERSION}")
         if meta.get("fingerprint") != path.name:
-            return f"{meta_p}: fingerprint {str(meta.get('fingerprint'))[:16]!r} is not the folder's"
+            raise _Damaged(f"{meta_p}: fingerprint {str(meta.get('fingerprint'))[:16]!r} is not "
+                           "the folder's")
         n_clips = len(meta["clip_names"])
         n_joints = len(meta["skeleton"]["names"])
         n_labels, n_styles = len(meta["label_names"]), len(meta["style_names"])
     except (AttributeError, KeyError, TypeError) as e:
-        return f"{meta_p}: lacks or garbles {str(e)[:100]} (expected the keys write_cache writes)"
+        raise _Damaged(f"{meta_p}: lacks or garbles {str(e)[:100]} (expected the keys "
+                       "write_cache writes)") from None
+    return meta, n_clips, n_joints, n_labels, n_styles
+
+
+def _header_problem(path: Path) -> dict:
+    """Every ``.npy`` of :data:`ARRAYS` with a readable header, exactly the size it implies and
+    a dtype prepare writes: their (shape, dtype, size) by name; :class:`_Damaged` otherwise."""
     heads = {}
     for k in ARRAYS:
         f = path / f"{k}.npy"
@@ -217,51 +243,77 @@ def cache_problem(path: Path) -> str | None:
             shape, dtype, want = heads[k] = _npy_header(f)
             have = f.stat().st_size
         except (OSError, ValueError, SyntaxError, TypeError, RecursionError) as e:
-            return f"{f}: not a readable .npy ({type(e).__name__}: {str(e)[:200]})"
+            raise _Damaged(f"{f}: not a readable .npy ({type(e).__name__}: {str(e)[:200]})") \
+                from None
         if have != want:
-            return f"{f}: {have} bytes, its header ({dtype.str} {shape}) implies {want} (truncated?)"
+            raise _Damaged(f"{f}: {have} bytes, its header ({dtype.str} {shape}) implies {want} "
+                           "(truncated?)")
         if dtype.kind not in ("f" if k in ("rotations", "root", "joints") else "iu"):
-            return f"{f}: dtype {dtype.str} is not what prepare writes"
+            raise _Damaged(f"{f}: dtype {dtype.str} is not what prepare writes")
+    return heads
+
+
+def _clip_arrays(path: Path, heads: dict, n_clips: int) -> dict[str, np.ndarray]:
+    """The per-clip arrays, each of one value per clip ``meta.json`` names, loaded;
+    :class:`_Damaged` otherwise."""
     small = {}
     for k in ("starts", "lengths", "labels", "styles", "split"):
         f = path / f"{k}.npy"
         if heads[k][0] != (n_clips,):
-            return f"{f}: shape {heads[k][0]}, meta.json names {n_clips} clips"
+            raise _Damaged(f"{f}: shape {heads[k][0]}, meta.json names {n_clips} clips")
         try:
             small[k] = np.load(f, allow_pickle=False)
         except (OSError, ValueError) as e:
-            return f"{f}: not a readable .npy ({e})"
+            raise _Damaged(f"{f}: not a readable .npy ({e})") from None
+    return small
+
+
+def _clip_array_problem(path: Path, meta: dict, small: dict[str, np.ndarray], n_clips: int,
+                        n_labels: int, n_styles: int) -> int:
+    """The per-clip arrays agree (lengths positive, starts their running sum, the frames
+    ``meta.json`` states, labels / styles / split in range): the frames in all;
+    :class:`_Damaged` otherwise."""
     lengths = small["lengths"].astype(np.int64)
     frames = int(lengths.sum())
     if n_clips and lengths.min() < 1:
-        return f"{path / 'lengths.npy'}: a clip has {int(lengths.min())} frames"
+        raise _Damaged(f"{path / 'lengths.npy'}: a clip has {int(lengths.min())} frames")
     if not np.array_equal(small["starts"], np.concatenate([[0], np.cumsum(lengths)[:-1]])
                           if n_clips else small["starts"]):
-        return f"{path / 'starts.npy'}: not the running sum of lengths.npy"
+        raise _Damaged(f"{path / 'starts.npy'}: not the running sum of lengths.npy")
     stats = meta.get("stats")
     stated = stats.get("frames") if isinstance(stats, dict) else None
     if stated is not None and stated != frames:
-        return f"{path / 'lengths.npy'}: {frames} frames in all, meta.json says {str(stated)[:20]}"
+        raise _Damaged(f"{path / 'lengths.npy'}: {frames} frames in all, meta.json says "
+                       f"{str(stated)[:20]}")
     for k, hi, lo in (("labels", n_labels, 0), ("styles", n_styles, -1), ("split", 2, 0)):
         a = small[k]
         if n_clips and (a.min() < lo or a.max() >= hi):
-            return f"{path / f'{k}.npy'}: values {int(a.min())}..{int(a.max())} outside {lo}..{hi - 1}"
+            raise _Damaged(f"{path / f'{k}.npy'}: values {int(a.min())}..{int(a.max())} outside "
+                           f"{lo}..{hi - 1}")
+    return frames
+
+
+def _frame_array_problem(path: Path, heads: dict, frames: int, n_joints: int) -> None:
+    """The per-frame arrays have ``frames`` rows of ``n_joints`` joints, and their first and
+    last frame hold unit quaternions and finite positions; :class:`_Damaged` otherwise."""
     for k, tail in (("rotations", (n_joints, 4)), ("root", (3,)), ("joints", (n_joints, 3))):
         if heads[k][0] != (frames, *tail):
-            return f"{path / f'{k}.npy'}: shape {heads[k][0]}, expected {(frames, *tail)}"
+            raise _Damaged(f"{path / f'{k}.npy'}: shape {heads[k][0]}, expected "
+                           f"{(frames, *tail)}")
     if frames:
         try:
             q = np.load(path / "rotations.npy", mmap_mode="r")[[0, frames - 1]]
             x = np.concatenate([np.load(path / f"{k}.npy", mmap_mode="r")[[0, frames - 1]]
                                 .reshape(2, -1) for k in ("root", "joints")], axis=1)
         except (OSError, ValueError) as e:
-            return f"{path}: cannot be read ({e})"
+            raise _Damaged(f"{path}: cannot be read ({e})") from None
         dev = float(np.abs(np.linalg.norm(q.astype(np.float64), axis=-1) - 1).max())
         if not dev <= UNIT_TOL:
-            return f"{path / 'rotations.npy'}: first/last frame rotations are not unit quaternions"
+            raise _Damaged(f"{path / 'rotations.npy'}: first/last frame rotations are not unit "
+                           "quaternions")
         if not np.isfinite(x).all():
-            return f"{path}: non-finite positions in the first/last frame of root/joints.npy"
-    return None
+            raise _Damaged(f"{path}: non-finite positions in the first/last frame of "
+                           "root/joints.npy")
 
 
 def prepared_problem(name: str = "bandai2", rebuild: str | None = None, *,

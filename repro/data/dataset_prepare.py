@@ -227,7 +227,6 @@ def _split_method(spec: DatasetSpec) -> str:
 def prepare_dataset(spec_path: str | Path, *, force: bool = False):
     """Prepare the data set a spec file describes (module docstring); returns a
     :class:`repro.data.cache.PrepareResult`.  A cache of the same fingerprint is reused."""
-    import hashlib
     import time
 
     from filelock import FileLock
@@ -235,8 +234,6 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
     from repro.data.cache import (POINTER, PrepareResult, dataset_dir, valid_cache, write_cache,
                                   write_json_atomic)
     from repro.data.dataset_clips import select_clips
-    from repro.keys import content_key
-    from repro.motion.skeleton import Skeleton
 
     t0 = time.perf_counter()
     spec_path = Path(spec_path)
@@ -245,13 +242,52 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
     source = (here / spec.source.path)
     if not source.exists():
         raise MissingDataError("the spec's source folder or archive is not there", source)
-    fmt = spec.source.format
     # the clips, their labels and split from the file names alone: a split that leaves a
     # class without a test or training clip is refused before any clip is parsed (issue 28)
     chosen = select_clips(spec, spec_path, source)
+    asfs, src_fp, fp, pointer = _fingerprint(spec, spec_path, here, source)
+    root = dataset_dir(spec.name)
+    root.mkdir(parents=True, exist_ok=True)
+    with FileLock(str(root / ".lock")):
+        meta = None if force else valid_cache(root / fp)
+        if meta is not None:
+            _check_expect(spec, spec_path, len(meta["clip_names"]), int(meta["stats"]["frames"]),
+                          len(meta["skeleton"]["names"]))
+            write_json_atomic(root / POINTER, pointer)
+            return PrepareResult(root / fp, fp, True, time.perf_counter() - t0,
+                                 len(meta["clip_names"]), int(meta["stats"]["frames"]))
+        clips, skipped, order, stems = _read_clips(spec, spec_path, here, source, chosen, asfs)
+        skel, fps, skeleton_notes = _dataset_skeleton(clips, spec, spec_path, source)
+        body = _body(skel, spec_path)
+        quats, roots, joints = _cast_clips(clips, order, skel)
+        lengths = np.array([q.shape[0] for q in quats], np.int64)
+        starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
+        lab = chosen.labels
+        _check_expect(spec, spec_path, len(stems), int(lengths.sum()), skel.n_joints)
+        checks = _posture_checks(skel, body, joints, fps, spec_path)
+        arrays = {"rotations": np.concatenate(quats), "root": np.concatenate(roots),
+                  "joints": np.concatenate(joints), "starts": starts, "lengths": lengths,
+                  "labels": lab.labels, "styles": lab.styles, "split": chosen.split}
+        meta = _meta(spec, spec_path, source, src_fp, fps, skel, lab, stems, lengths, skipped,
+                     skeleton_notes + checks)
+        write_cache(root, fp, arrays, meta)
+        write_json_atomic(root / POINTER, pointer)
+    return PrepareResult(root / fp, fp, False, time.perf_counter() - t0, len(stems),
+                         int(lengths.sum()))
+
+
+def _fingerprint(spec: DatasetSpec, spec_path: Path, here: Path, source: Path):
+    """``(asfs, source fingerprint, fingerprint, pointer)``: the ASF file(s) of an ``asf_amc``
+    source (read before the clips, :mod:`repro.data.dataset_asf`), the fingerprint of the spec
+    (as validated), the source, the ASF files and the labels file, and the ``current.json``
+    content naming it."""
+    import hashlib
+
+    from repro.keys import content_key
+
     digest = hashlib.sha256()
     asfs = None
-    if fmt == "asf_amc":  # the ASF file(s), read before the clips (dataset_asf)
+    if spec.source.format == "asf_amc":  # the ASF file(s), read before the clips (dataset_asf)
         asfs = read_skeleton_files(source, spec)
         digest.update(asfs.digest())
     from repro.data.sources import read_regular, source_fingerprint
@@ -271,93 +307,99 @@ def prepare_dataset(spec_path: str | Path, *, force: bool = False):
                       "source": src_fp, "asf": digest.hexdigest(),
                       **naming_material(source)})  # archives only: how root members are named
     pointer["fingerprint"] = fp
-    root = dataset_dir(spec.name)
-    root.mkdir(parents=True, exist_ok=True)
-    with FileLock(str(root / ".lock")):
-        meta = None if force else valid_cache(root / fp)
-        if meta is not None:
-            _check_expect(spec, spec_path, len(meta["clip_names"]), int(meta["stats"]["frames"]),
-                          len(meta["skeleton"]["names"]))
-            write_json_atomic(root / POINTER, pointer)
-            return PrepareResult(root / fp, fp, True, time.perf_counter() - t0,
-                                 len(meta["clip_names"]), int(meta["stats"]["frames"]))
-        sk = spec.skeleton
-        known = {p.relative_to(source.resolve()).as_posix().lower()
-                 for p in (here / (spec.labels.file or ""), spec_path.resolve())
-                 if source.is_dir() and p.is_file() and p.is_relative_to(source.resolve())}
-        clips, skipped = [], SkippedFiles(known, spec)  # a count and the first names: bounded
-        budget = FrameBudget(spec.frames.resample_to, spec.frames.fps, spec.limits)  # caps
-        for label, data in _iter_files(source, spec, skipped, chosen.kept_rel):  # as they stream
-            clips.append(convert_bvh(label, data, sk, budget) if fmt == "bvh" else
-                         convert_amc(label, data, asfs.parsed(asfs.asf_for(
-                             inner_path(label, source))), sk, spec.frames.fps, budget))
-            # scaled, turned, resampled and cast to float32 at once: what the clips hold until
-            # they are published is what the total caps count (the float64 copy at the files'
-            # rate was held for every clip: 4 × the frames counted, at twice the bytes)
-            _finish_clip(clips[-1], spec, spec.frames.fps if spec.frames.fps is not None
-                         else round(clips[0]["fps"], 3))
-        order = sorted(range(len(clips)), key=lambda i: clips[i]["label"])
-        stems = [clip_stem(clips[i]["label"], source) for i in order]
-        if stems != chosen.stems:  # the clips listed before parsing are the ones read
-            raise DataError("the source's clip files changed while it was read; run again",
-                            source)
-        first = clips[0]
-        skeleton_notes = one_skeleton(clips, sk, lambda lab: inner_path(lab, source), source)
-        for c in clips[1:]:
-            if not abs(c["fps"] - first["fps"]) <= FPS_RTOL * first["fps"]:
-                raise DataError(f"{c['fps']:g} fps, {first['label']} has {first['fps']:g}",
-                                c["label"])
-        fps = round(first["fps"], 3)
-        if spec.frames.fps is not None:
-            if not abs(spec.frames.fps - first["fps"]) <= FPS_RTOL * spec.frames.fps:
-                raise DataError(f"the files run at {first['fps']:g} fps, the spec says "
-                                f"{spec.frames.fps:g}", source)
-            fps = float(spec.frames.fps)  # a printed frame time (0.008333) is a rounded 1/fps
-        for n in (*(sk.hips or ()), *((sk.up_joint,) if sk.up_joint else ())):
-            if n not in first["names"]:
-                raise DataError(f"[skeleton] names joint {n!r}, which the files do not have "
-                                f"(joints: {', '.join(first['names'])})", spec_path)
-        skel = Skeleton(tuple(first["names"]), tuple(first["parents"]),
-                        first["offsets"] * sk.scale,
-                        None if sk.hips is None else tuple(sk.hips), sk.up_joint)
-        if spec.frames.resample_to is not None:
-            fps = float(spec.frames.resample_to)
-        body = _body(skel, spec_path)
-        lab = chosen.labels
-        labels, styles, classes, style_names, subjects = (lab.labels, lab.styles, lab.classes,
-                                                          lab.style_names, lab.subjects)
-        with np.errstate(over="ignore", invalid="ignore"):  # overflow: check_finite says it
-            # float64 copies dropped as they are cast (memory: docs/data.md, Frames and memory)
-            quats = [np.asarray(clips[i].pop("quats"), np.float32) for i in order]
-            roots = [clips[i].pop("root").astype(np.float32) for i in order]
-            joints = [joints_f32(skel, q, r) for q, r in zip(quats, roots)]
-        for i, q, r, j in zip(order, quats, roots, joints):  # nothing non-finite is published
-            check_finite(clips[i]["label"], rotations=q, root=r, joints=j)
-        lengths = np.array([q.shape[0] for q in quats], np.int64)
-        starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
-        split = chosen.split
-        _check_expect(spec, spec_path, len(stems), int(lengths.sum()), skel.n_joints)
-        checks = _posture_checks(skel, body, joints, fps, spec_path)
-        arrays = {"rotations": np.concatenate(quats), "root": np.concatenate(roots),
-                  "joints": np.concatenate(joints), "starts": starts, "lengths": lengths,
-                  "labels": labels, "styles": styles, "split": split}
-        from repro import __version__
+    return asfs, src_fp, fp, pointer
 
-        meta = {"name": spec.name, "source_fingerprint": src_fp,
-                "source_kind": "folder" if source.is_dir() else "archive",
-                "spec_file": str(spec_path), "fps": fps, "skeleton": skel.to_dict(),
-                "units": "metres, Y up",
-                "rotations": f"local, xyzw, as the {fmt} files give them",
-                "label_names": classes, "style_names": style_names, "clip_names": stems,
-                **({"clip_subjects": subjects} if any(x is not None for x in subjects) else {}),
-                "split": {"method": _split_method(spec), **spec.split.model_dump(
-                    exclude={"stratify"} if spec.split.stratify is None else set())},
-                "card": _card(spec, classes, style_names, labels, lengths, fps, subjects,
-                              skipped, lab.unused_rows, skeleton_notes + checks, lab.dropped,
-                              lab.unlisted),
-                "stats": {"clips": len(stems), "frames": int(lengths.sum())},
-                "repro_version": __version__, "dataset_spec_version": PREPARE_VERSION}
-        write_cache(root, fp, arrays, meta)
-        write_json_atomic(root / POINTER, pointer)
-    return PrepareResult(root / fp, fp, False, time.perf_counter() - t0, len(stems),
-                         int(lengths.sum()))
+
+def _read_clips(spec: DatasetSpec, spec_path: Path, here: Path, source: Path, chosen, asfs):
+    """``(clips, skipped, order, stems)``: the chosen clips read and converted as they stream
+    (:func:`_finish_clip`), the files no pattern took, the clips' order by label and their
+    names, which must be those :func:`repro.data.dataset_clips.select_clips` listed."""
+    sk, fmt = spec.skeleton, spec.source.format
+    known = {p.relative_to(source.resolve()).as_posix().lower()
+             for p in (here / (spec.labels.file or ""), spec_path.resolve())
+             if source.is_dir() and p.is_file() and p.is_relative_to(source.resolve())}
+    clips, skipped = [], SkippedFiles(known, spec)  # a count and the first names: bounded
+    budget = FrameBudget(spec.frames.resample_to, spec.frames.fps, spec.limits)  # caps
+    for label, data in _iter_files(source, spec, skipped, chosen.kept_rel):  # as they stream
+        clips.append(convert_bvh(label, data, sk, budget) if fmt == "bvh" else
+                     convert_amc(label, data, asfs.parsed(asfs.asf_for(
+                         inner_path(label, source))), sk, spec.frames.fps, budget))
+        # scaled, turned, resampled and cast to float32 at once: what the clips hold until
+        # they are published is what the total caps count (the float64 copy at the files'
+        # rate was held for every clip: 4 × the frames counted, at twice the bytes)
+        _finish_clip(clips[-1], spec, spec.frames.fps if spec.frames.fps is not None
+                     else round(clips[0]["fps"], 3))
+    order = sorted(range(len(clips)), key=lambda i: clips[i]["label"])
+    stems = [clip_stem(clips[i]["label"], source) for i in order]
+    if stems != chosen.stems:  # the clips listed before parsing are the ones read
+        raise DataError("the source's clip files changed while it was read; run again",
+                        source)
+    return clips, skipped, order, stems
+
+
+def _dataset_skeleton(clips: list[dict], spec: DatasetSpec, spec_path: Path, source: Path):
+    """``(skeleton, fps, notes)``: the one skeleton and frame rate every clip shares (checked,
+    and against the spec's ``[frames] fps`` and the joints ``[skeleton]`` names), the rate as
+    stored (``resample_to`` when given), and the card's notes on the skeleton."""
+    from repro.motion.skeleton import Skeleton
+
+    sk = spec.skeleton
+    first = clips[0]
+    skeleton_notes = one_skeleton(clips, sk, lambda lab: inner_path(lab, source), source)
+    for c in clips[1:]:
+        if not abs(c["fps"] - first["fps"]) <= FPS_RTOL * first["fps"]:
+            raise DataError(f"{c['fps']:g} fps, {first['label']} has {first['fps']:g}",
+                            c["label"])
+    fps = round(first["fps"], 3)
+    if spec.frames.fps is not None:
+        if not abs(spec.frames.fps - first["fps"]) <= FPS_RTOL * spec.frames.fps:
+            raise DataError(f"the files run at {first['fps']:g} fps, the spec says "
+                            f"{spec.frames.fps:g}", source)
+        fps = float(spec.frames.fps)  # a printed frame time (0.008333) is a rounded 1/fps
+    for n in (*(sk.hips or ()), *((sk.up_joint,) if sk.up_joint else ())):
+        if n not in first["names"]:
+            raise DataError(f"[skeleton] names joint {n!r}, which the files do not have "
+                            f"(joints: {', '.join(first['names'])})", spec_path)
+    skel = Skeleton(tuple(first["names"]), tuple(first["parents"]),
+                    first["offsets"] * sk.scale,
+                    None if sk.hips is None else tuple(sk.hips), sk.up_joint)
+    if spec.frames.resample_to is not None:
+        fps = float(spec.frames.resample_to)
+    return skel, fps, skeleton_notes
+
+
+def _cast_clips(clips: list[dict], order: list[int], skel):
+    """``(rotations, roots, joints)`` per clip in ``order``, float32 (joints by forward
+    kinematics), each clip's float64 copies dropped as they are cast; nothing non-finite
+    (:func:`repro.data.prepare_caps.check_finite`)."""
+    with np.errstate(over="ignore", invalid="ignore"):  # overflow: check_finite says it
+        # float64 copies dropped as they are cast (memory: docs/data.md, Frames and memory)
+        quats = [np.asarray(clips[i].pop("quats"), np.float32) for i in order]
+        roots = [clips[i].pop("root").astype(np.float32) for i in order]
+        joints = [joints_f32(skel, q, r) for q, r in zip(quats, roots)]
+    for i, q, r, j in zip(order, quats, roots, joints):  # nothing non-finite is published
+        check_finite(clips[i]["label"], rotations=q, root=r, joints=j)
+    return quats, roots, joints
+
+
+def _meta(spec: DatasetSpec, spec_path: Path, source: Path, src_fp: str, fps: float, skel,
+          lab, stems: list[str], lengths: np.ndarray, skipped: SkippedFiles,
+          warnings: list[str]) -> dict:
+    """The published ``meta.json``: names, skeleton, units, labels, clips, split and card."""
+    from repro import __version__
+
+    return {"name": spec.name, "source_fingerprint": src_fp,
+            "source_kind": "folder" if source.is_dir() else "archive",
+            "spec_file": str(spec_path), "fps": fps, "skeleton": skel.to_dict(),
+            "units": "metres, Y up",
+            "rotations": f"local, xyzw, as the {spec.source.format} files give them",
+            "label_names": lab.classes, "style_names": lab.style_names, "clip_names": stems,
+            **({"clip_subjects": lab.subjects} if any(x is not None for x in lab.subjects)
+               else {}),
+            "split": {"method": _split_method(spec), **spec.split.model_dump(
+                exclude={"stratify"} if spec.split.stratify is None else set())},
+            "card": _card(spec, lab.classes, lab.style_names, lab.labels, lengths, fps,
+                          lab.subjects, skipped, lab.unused_rows, warnings, lab.dropped,
+                          lab.unlisted),
+            "stats": {"clips": len(stems), "frames": int(lengths.sum())},
+            "repro_version": __version__, "dataset_spec_version": PREPARE_VERSION}

@@ -219,47 +219,75 @@ def iter_source(source: Path, kind_of: Callable[[str], str | None] | None = None
     :mod:`tarfile`'s list of the members seen is emptied as it goes (it kept every TarInfo:
     100,000 members of 4 KB names held 470 MB).
     """
-    total = 0
-
-    def admit(size: int, where: str, member: str, *, read: bool) -> None:
-        nonlocal total
-        if read and size > MAX_MEMBER_BYTES:
-            raise DataError(f"{member} is {_mib(size)}, over the {_mib(MAX_MEMBER_BYTES)} cap on "
-                            "one file (sources.MAX_MEMBER_BYTES); not read", where)
-        total += size
-        if total > MAX_SOURCE_BYTES:
-            raise DataError(f"the files up to {member} add up to {_mib(total)}, over the "
-                            f"{_mib(MAX_SOURCE_BYTES)} cap on a source (sources.MAX_SOURCE_BYTES); "
-                            "not read", where)
-
-    def bandai_kind(name: str) -> str | None:
-        base = name.rsplit("/", 1)[-1]
-        if base.endswith(".bvh"):
-            return "bvh"
-        if base.endswith(".json"):
-            return "json"
-        if base in ("content_label.txt", "style_label.txt"):
-            return base
-        return None
-
-    kind_of = kind_of or bandai_kind
+    kind_of = kind_of or _bandai_kind
     check_source(source)
     if source.is_dir():
-        for p in sorted(source.rglob("*")):
-            k = kind_of(p.relative_to(source).as_posix())
-            if k and not inside(p, source):
-                raise DataError(_OUT_OR_LOOP, p)
-            if k and p.is_file():
-                admit(p.stat().st_size, str(source), p.relative_to(source).as_posix(),
-                      read=True)
-                yield k, str(p), p.read_bytes()
-            elif not k and on_skip is not None and p.is_file():
-                on_skip(p.relative_to(source).as_posix())
+        yield from _iter_folder(source, kind_of, on_skip, _Admit(str(source)))
         return
+    yield from _iter_archive(source, kind_of, on_skip, _Admit(str(source)))
+
+
+def _bandai_kind(name: str) -> str | None:
+    """The built-in stand-in's kind of the file at ``name``: ``bvh``, ``json``, its label file's
+    name (``content_label.txt``, ``style_label.txt``) or None (not read)."""
+    base = name.rsplit("/", 1)[-1]
+    if base.endswith(".bvh"):
+        return "bvh"
+    if base.endswith(".json"):
+        return "json"
+    if base in ("content_label.txt", "style_label.txt"):
+        return base
+    return None
+
+
+class _Admit:
+    """The size caps of one source read: each file admitted by its size before it is read
+    (:data:`MAX_MEMBER_BYTES` for a file that is read, :data:`MAX_SOURCE_BYTES` for them all,
+    counted as they come; DataError naming ``where``, the member and the cap)."""
+
+    def __init__(self, where: str):
+        self.where, self.total = where, 0
+
+    def __call__(self, size: int, member: str, *, read: bool) -> None:
+        if read and size > MAX_MEMBER_BYTES:
+            raise DataError(f"{member} is {_mib(size)}, over the {_mib(MAX_MEMBER_BYTES)} cap on "
+                            "one file (sources.MAX_MEMBER_BYTES); not read", self.where)
+        self.total += size
+        if self.total > MAX_SOURCE_BYTES:
+            raise DataError(f"the files up to {member} add up to {_mib(self.total)}, over the "
+                            f"{_mib(MAX_SOURCE_BYTES)} cap on a source (sources.MAX_SOURCE_BYTES); "
+                            "not read", self.where)
+
+
+def _iter_folder(source: Path, kind_of: Callable[[str], str | None],
+                 on_skip: Callable[[str], None] | None, admit: _Admit
+                 ) -> Iterator[tuple[str, str, bytes]]:
+    """:func:`iter_source` over a folder: its files in sorted order, sizes from ``stat``; a
+    file given a kind that a symbolic link leads out of the folder (or round a loop) is
+    refused."""
+    for p in sorted(source.rglob("*")):
+        k = kind_of(p.relative_to(source).as_posix())
+        if k and not inside(p, source):
+            raise DataError(_OUT_OR_LOOP, p)
+        if k and p.is_file():
+            admit(p.stat().st_size, p.relative_to(source).as_posix(), read=True)
+            yield k, str(p), p.read_bytes()
+        elif not k and on_skip is not None and p.is_file():
+            on_skip(p.relative_to(source).as_posix())
+
+
+def _broken_archive_errors() -> tuple[type[BaseException], ...]:
+    """What reading a damaged or truncated archive raises (tar, xz, gzip and bz2 readers)."""
     import lzma
     import zlib
 
-    broken = (tarfile.TarError, EOFError, OSError, lzma.LZMAError, zlib.error)
+    return (tarfile.TarError, EOFError, OSError, lzma.LZMAError, zlib.error)
+
+
+def _open_archive(source: Path):
+    """``(raw, tf)``: the archive decompressed as it is read and :mod:`tarfile`'s stream over
+    it (with :class:`_CappedTarInfo`); DataError when it is no readable tar archive."""
+    broken = _broken_archive_errors()
     raw = None
     try:
         raw = _open_decompressed(source)
@@ -269,24 +297,41 @@ def iter_source(source: Path, kind_of: Callable[[str], str | None] | None = None
             raw.close()
         why = str(e) if isinstance(e, _TarCapError) else f"not a readable tar archive or folder ({e})"
         raise DataError(why, source) from None
+    return raw, tf
+
+
+def _check_member(m: tarfile.TarInfo, count: int, source: Path) -> None:
+    """The ``count``-th entry ``m`` of the archive is within :data:`MAX_MEMBERS` and its path
+    within :data:`MAX_MEMBER_NAME` characters and :data:`MAX_MEMBER_DEPTH` folders."""
+    if count > MAX_MEMBERS:
+        raise DataError(f"the archive holds over {MAX_MEMBERS:,} entries, the cap "
+                        "(sources.MAX_MEMBERS); not read further", source)
+    if len(m.name) > MAX_MEMBER_NAME or m.name.count("/") > MAX_MEMBER_DEPTH:
+        raise DataError(f"a member's path of {len(m.name):,} characters and "
+                        f"{m.name.count('/'):,} folders is over the cap "
+                        f"({MAX_MEMBER_NAME} characters, {MAX_MEMBER_DEPTH} "
+                        "folders: sources.MAX_MEMBER_NAME / MAX_MEMBER_DEPTH); "
+                        "not read", source)
+
+
+def _iter_archive(source: Path, kind_of: Callable[[str], str | None],
+                  on_skip: Callable[[str], None] | None, admit: _Admit
+                  ) -> Iterator[tuple[str, str, bytes]]:
+    """:func:`iter_source` over a tar archive: one streamed pass, each member's header checked
+    (:func:`_check_member`) and its size admitted before its data is read; a damaged archive
+    is a DataError naming it."""
+    broken = _broken_archive_errors()
+    raw, tf = _open_archive(source)
     try:
         with raw, tf:
             count = 0
             while (m := tf.next()) is not None:
                 tf.members = []  # streamed: nothing looks back (tarfile kept every TarInfo)
                 count += 1
-                if count > MAX_MEMBERS:
-                    raise DataError(f"the archive holds over {MAX_MEMBERS:,} entries, the cap "
-                                    "(sources.MAX_MEMBERS); not read further", source)
-                if len(m.name) > MAX_MEMBER_NAME or m.name.count("/") > MAX_MEMBER_DEPTH:
-                    raise DataError(f"a member's path of {len(m.name):,} characters and "
-                                    f"{m.name.count('/'):,} folders is over the cap "
-                                    f"({MAX_MEMBER_NAME} characters, {MAX_MEMBER_DEPTH} "
-                                    "folders: sources.MAX_MEMBER_NAME / MAX_MEMBER_DEPTH); "
-                                    "not read", source)
+                _check_member(m, count, source)
                 k = kind_of(m.name)
                 if m.isfile():  # the header is read; the member's data is not yet
-                    admit(m.size, str(source), m.name, read=k is not None)
+                    admit(m.size, m.name, read=k is not None)
                 if k is None and on_skip is not None and not m.isdir():
                     on_skip(m.name)
                 if k is None or not m.isfile():

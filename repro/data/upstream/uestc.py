@@ -197,43 +197,11 @@ def weak_perspective_depth(scale: np.ndarray, focal: float = 500.0,
 
 
 def _read_actor(root: Path, min_train_frames: int, class_order: str) -> UESTCData:
-    names = read_lines(root / "info/names.txt")
-    counts_txt = read_lines(root / "info/num_frames_min.txt")
-    classes = tuple(read_lines(root / "info/action_classes.txt"))
-    if len(counts_txt) != len(names):
-        raise DataError(f"{len(counts_txt)} frame counts for {len(names)} names",
-                        root / "info/num_frames_min.txt")
-    try:
-        counts = [int(c) for c in counts_txt]
-    except ValueError:
-        raise DataError("frame counts must be integers", root / "info/num_frames_min.txt") from None
-    pkl = root / "vibe_cache_refined.pkl"
-    vibe = load_restricted(pkl)
-    if not isinstance(vibe, dict) or "joints3d" not in vibe:
-        raise DataError("expected a dict with 'pose', 'joints3d' and 'orig_cam'", pkl)
-    j3d = list(vibe["joints3d"])
-    poses = list(vibe.get("pose", j3d))
-    if len(j3d) != len(names):
-        raise DataError(f"{len(j3d)} clips for {len(names)} names in info/names.txt", pkl)
-    gpath = root / "globtrans_usez.pkl"
-    globtrans = list(load_restricted(gpath)) if gpath.is_file() else None
-    cams = None if globtrans is not None else vibe.get("orig_cam")
-    if globtrans is None and cams is None:
-        raise DataError("neither globtrans_usez.pkl nor 'orig_cam' is available for the root "
-                        "trajectory", pkl)
-    if class_order == "odmo":
-        index = {_norm(c): i for i, c in enumerate(UESTC_ODMO_CLASSES)}
-        unknown = [c for c in classes if _norm(c) not in index]
-        if unknown:
-            raise DataError(f"class names not in ODMO's list: {unknown[:5]}",
-                            root / "info/action_classes.txt")
-        remap = [index[_norm(c)] for c in classes]
-        class_names = UESTC_ODMO_CLASSES
-    elif class_order == "file":
-        remap = list(range(len(classes)))
-        class_names = classes
-    else:
-        raise ValueError(f"unknown class_order {class_order!r}")
+    """The ACTOR layout (module docstring): its index files, ``vibe_cache_refined.pkl`` and the
+    root trajectories, then each clip as ACTOR processes it."""
+    names, counts, classes = _actor_index(root)
+    pkl, j3d, poses, globtrans, cams = _actor_vibe(root, names)
+    remap, class_names = _actor_classes(root, classes, class_order)
     train_subjects = set(ACTOR_TRAIN_SUBJECTS)
     joints, labels, out_names, split, subjects, views = [], [], [], [], [], []
     for i, name in enumerate(names):
@@ -250,12 +218,7 @@ def _read_actor(root: Path, min_train_frames: int, class_order: str) -> UESTCDat
         n = min(counts[i], j.shape[0], np.asarray(poses[i]).shape[0])
         if side != 1 and view == 8:
             continue
-        if globtrans is not None:
-            gt = np.asarray(globtrans[i], dtype=np.float64).reshape(-1, 3)
-        else:
-            cam = np.asarray(cams[i], dtype=np.float64).reshape(-1, 4)
-            gt = np.stack([cam[:, 2], cam[:, 3], weak_perspective_depth(cam[:, 0])], axis=1)
-            gt = gt - gt[:1]
+        gt = _actor_trajectory(i, globtrans, cams)
         if gt.shape[0] < n:
             raise DataError(f"clip {i}: root trajectory has {gt.shape[0]} frames, need {n}", pkl)
         j, gt = j[:n], gt[:n]
@@ -280,6 +243,69 @@ def _read_actor(root: Path, min_train_frames: int, class_order: str) -> UESTCDat
     return UESTCData(tuple(joints), np.asarray(labels, np.int64), tuple(class_names),
                      tuple(out_names), np.asarray(split, np.int8), np.asarray(subjects, np.int64),
                      np.asarray(views, np.int64), "actor", str(root), fp)
+
+
+def _actor_index(root: Path) -> tuple[list[str], list[int], tuple[str, ...]]:
+    """The ACTOR layout's ``info/`` files: clip names, one integer frame count per name, and
+    the class names by action id."""
+    names = read_lines(root / "info/names.txt")
+    counts_txt = read_lines(root / "info/num_frames_min.txt")
+    classes = tuple(read_lines(root / "info/action_classes.txt"))
+    if len(counts_txt) != len(names):
+        raise DataError(f"{len(counts_txt)} frame counts for {len(names)} names",
+                        root / "info/num_frames_min.txt")
+    try:
+        counts = [int(c) for c in counts_txt]
+    except ValueError:
+        raise DataError("frame counts must be integers", root / "info/num_frames_min.txt") from None
+    return names, counts, classes
+
+
+def _actor_vibe(root: Path, names: list[str]):
+    """``(pkl, joints3d, pose, globtrans, orig_cam)`` of ``vibe_cache_refined.pkl`` (one clip per
+    name) and the root trajectories: ``globtrans_usez.pkl`` when present (``orig_cam`` is then
+    None), else the cache's ``orig_cam`` (``globtrans`` None)."""
+    pkl = root / "vibe_cache_refined.pkl"
+    vibe = load_restricted(pkl)
+    if not isinstance(vibe, dict) or "joints3d" not in vibe:
+        raise DataError("expected a dict with 'pose', 'joints3d' and 'orig_cam'", pkl)
+    j3d = list(vibe["joints3d"])
+    poses = list(vibe.get("pose", j3d))
+    if len(j3d) != len(names):
+        raise DataError(f"{len(j3d)} clips for {len(names)} names in info/names.txt", pkl)
+    gpath = root / "globtrans_usez.pkl"
+    globtrans = list(load_restricted(gpath)) if gpath.is_file() else None
+    cams = None if globtrans is not None else vibe.get("orig_cam")
+    if globtrans is None and cams is None:
+        raise DataError("neither globtrans_usez.pkl nor 'orig_cam' is available for the root "
+                        "trajectory", pkl)
+    return pkl, j3d, poses, globtrans, cams
+
+
+def _actor_classes(root: Path, classes: tuple[str, ...], class_order: str):
+    """``(remap, class_names)``: the label of each action id and the class names, in ODMO's
+    order (``class_order="odmo"``: every file class must be in ODMO's list) or the file's."""
+    if class_order == "odmo":
+        index = {_norm(c): i for i, c in enumerate(UESTC_ODMO_CLASSES)}
+        unknown = [c for c in classes if _norm(c) not in index]
+        if unknown:
+            raise DataError(f"class names not in ODMO's list: {unknown[:5]}",
+                            root / "info/action_classes.txt")
+        return [index[_norm(c)] for c in classes], UESTC_ODMO_CLASSES
+    if class_order == "file":
+        return list(range(len(classes))), classes
+    raise ValueError(f"unknown class_order {class_order!r}")
+
+
+def _actor_trajectory(i: int, globtrans, cams) -> np.ndarray:
+    """Clip ``i``'s root trajectory (T, 3): its ``globtrans_usez.pkl`` entry, else computed
+    from ``orig_cam`` as ACTOR does (``tx, ty`` and the weak-perspective depth, minus the first
+    frame)."""
+    if globtrans is not None:
+        return np.asarray(globtrans[i], dtype=np.float64).reshape(-1, 3)
+    cam = np.asarray(cams[i], dtype=np.float64).reshape(-1, 4)
+    gt = np.stack([cam[:, 2], cam[:, 3], weak_perspective_depth(cam[:, 0])], axis=1)
+    return gt - gt[:1]
 
 
 def uestc_clipset(data: UESTCData, *, up: UpAxis = "-y", fps: float = UESTC_FPS,
