@@ -171,6 +171,23 @@ def _show(args: argparse.Namespace) -> int:
 
     con = _console()
     con.print(f"[bold]{run['run_id']}[/]  {run['status']}  {_esc(run.get('table') or '')}")
+    t = Table(show_header=False, box=None)
+    t.add_column(style="dim")
+    t.add_column()
+    for k, v in _show_info(run):
+        t.add_row(k, f"[red]{_esc(v)}[/]" if k == "error" else _esc(v))
+    con.print(t)
+    _show_jobs(con, run.get("jobs") or [])
+    _show_cells(con, rec.values)
+    _show_curves(con, trainings)
+    if rec.summary is not None:
+        con.print(f"summary: {rec.path / 'summary.json'}")
+    return 0
+
+
+def _show_info(run: dict) -> list[tuple[str, Any]]:
+    """``runs show``'s (field, value) lines of a run: scale, spec, times, code, machine,
+    packages, command, job counts, store keys, the real-data gate, error and note."""
     env = run.get("env") or {}
     git = run.get("git") or {}
     spec = run.get("spec") or {}
@@ -189,9 +206,8 @@ def _show(args: argparse.Namespace) -> int:
         ("packages", ", ".join(f"{k} {v}" for k, v in (run.get("packages") or {}).items())),
         ("command", " ".join(run.get("command") or [])),
     ]
-    jobs = run.get("jobs") or []
     counts: dict[str, int] = {}
-    for j in jobs:
+    for j in run.get("jobs") or []:
         counts[j.get("status")] = counts.get(j.get("status"), 0) + 1
     info.append(("jobs", ", ".join(f"{n} {s}" for s, n in sorted(counts.items(),
                                                               key=lambda kv: str(kv[0])))
@@ -208,42 +224,54 @@ def _show(args: argparse.Namespace) -> int:
         info.append(("error", run["error"]))
     if run.get("note"):
         info.append(("note", run["note"]))
-    t = Table(show_header=False, box=None)
-    t.add_column(style="dim")
-    t.add_column()
-    for k, v in info:
-        t.add_row(k, f"[red]{_esc(v)}[/]" if k == "error" else _esc(v))
-    con.print(t)
-    if jobs:
-        jt = Table(title="jobs", title_justify="left")
-        for col in ("job", "kind", "status", "seconds", "key"):
-            jt.add_column(col)
-        for j in jobs:
-            jt.add_row(_esc(j.get("label") or j.get("kind")), _esc(j.get("kind")),
-                       _esc(j.get("status")),
-                       _fmt_num(j.get("seconds")), str(j.get("key"))[:12])
-        con.print(jt)
-    cells = _cells(rec.values)
-    if cells:
-        ct = Table(title="cells (mean over replicates)", title_justify="left")
-        for col in ("row", "column", "mean", "n", "min", "max"):
-            ct.add_column(col, justify="left" if col in ("row", "column") else "right")
-        for (r, c), s in cells.items():
-            ct.add_row(_esc(r), _esc(c), _fmt_num(s["mean"]), str(s["n"]), _fmt_num(s["min"]),
-                       _fmt_num(s["max"]))
-        con.print(ct)
-    if trainings:
-        from repro.report.curves import format_learning_curve
+    return info
 
-        con.print("[bold]Learning curves[/]")
-        for t in trainings:
-            con.print(f"{_esc(t.get('row'))}  ({_esc(t.get('method'))}, seed {_esc(t.get('seed'))}, "
-                      f"job {str(t.get('job'))[:12]})")
-            for line in format_learning_curve(t.get("training") or {}):
-                con.print("  " + line, markup=False, highlight=False, soft_wrap=True)
-    if rec.summary is not None:
-        con.print(f"summary: {rec.path / 'summary.json'}")
-    return 0
+
+def _show_jobs(con, jobs: list[dict]) -> None:
+    """``runs show``'s table of the run's jobs (none printed when it has none)."""
+    if not jobs:
+        return
+    from rich.table import Table
+
+    jt = Table(title="jobs", title_justify="left")
+    for col in ("job", "kind", "status", "seconds", "key"):
+        jt.add_column(col)
+    for j in jobs:
+        jt.add_row(_esc(j.get("label") or j.get("kind")), _esc(j.get("kind")),
+                   _esc(j.get("status")),
+                   _fmt_num(j.get("seconds")), str(j.get("key"))[:12])
+    con.print(jt)
+
+
+def _show_cells(con, values: list[dict]) -> None:
+    """``runs show``'s table of each cell's mean, count, min and max over replicates (none
+    printed when the run has no value)."""
+    cells = _cells(values)
+    if not cells:
+        return
+    from rich.table import Table
+
+    ct = Table(title="cells (mean over replicates)", title_justify="left")
+    for col in ("row", "column", "mean", "n", "min", "max"):
+        ct.add_column(col, justify="left" if col in ("row", "column") else "right")
+    for (r, c), s in cells.items():
+        ct.add_row(_esc(r), _esc(c), _fmt_num(s["mean"]), str(s["n"]), _fmt_num(s["min"]),
+                   _fmt_num(s["max"]))
+    con.print(ct)
+
+
+def _show_curves(con, trainings: list[dict]) -> None:
+    """``runs show``'s learning curves, one block per training (none printed without)."""
+    if not trainings:
+        return
+    from repro.report.curves import format_learning_curve
+
+    con.print("[bold]Learning curves[/]")
+    for t in trainings:
+        con.print(f"{_esc(t.get('row'))}  ({_esc(t.get('method'))}, seed {_esc(t.get('seed'))}, "
+                  f"job {str(t.get('job'))[:12]})")
+        for line in format_learning_curve(t.get("training") or {}):
+            con.print("  " + line, markup=False, highlight=False, soft_wrap=True)
 
 
 def _kernels_line(rec) -> str:

@@ -105,11 +105,25 @@ def _retrain_option(p: argparse.ArgumentParser) -> None:
 
 
 def register(sub) -> None:
+    _register_list(sub)
+    _register_plan(sub)
+    _register_run(sub)
+    _register_sweep(sub)
+    _register_show(sub)
+    _register_rescore(sub)
+    _register_verify(sub)
+
+
+def _register_list(sub) -> None:
+    """``repro list``: every table spec with its state."""
     p = sub.add_parser("list", help="every table spec with its state")
     p.add_argument("--scale", default="quick")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_list)
 
+
+def _register_plan(sub) -> None:
+    """``repro plan``: what a run would do, without computing."""
     p = sub.add_parser("plan", help="what a run would do: jobs, keys, cache hits, and why")
     p.add_argument("table")
     _common(p)
@@ -119,6 +133,9 @@ def register(sub) -> None:
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_plan)
 
+
+def _register_run(sub) -> None:
+    """``repro run``: compute and print one or more tables."""
     p = sub.add_parser("run", help="train/load, sample, measure and print one or more tables",
                        description="Several tables run as one job graph (shared jobs once; "
                        "--jobs N overlaps their trainings); each gets its own run record.")
@@ -143,6 +160,9 @@ def register(sub) -> None:
                    help="term | md | latex | html | json | csv")
     _computing_options(p, cmd_run)
 
+
+def _register_sweep(sub) -> None:
+    """``repro sweep``: a table rerun along a budget or evaluator-seed axis."""
     p = sub.add_parser("sweep", help="rerun a table at several training budgets or with "
                        "several evaluator seeds; cells and verdicts against the axis",
                        description="Each point is an ordinary run (cached jobs reused; the x1 "
@@ -162,6 +182,9 @@ def register(sub) -> None:
                    help="term | md | json (default term)")
     _computing_options(p, cmd_sweep)
 
+
+def _register_show(sub) -> None:
+    """``repro show``: a table from a stored run, without computing."""
     p = sub.add_parser("show", help="print a table from its newest run (no computing)")
     p.add_argument("table")
     _common(p)
@@ -171,6 +194,9 @@ def register(sub) -> None:
                    help="term | md | latex | html | json | csv")
     p.set_defaults(func=cmd_show)
 
+
+def _register_rescore(sub) -> None:
+    """``repro rescore``: metrics and intervals recomputed from stored samples."""
     p = sub.add_parser("rescore", help="recompute metrics and intervals from stored samples")
     p.add_argument("table")
     _common(p)
@@ -179,6 +205,9 @@ def register(sub) -> None:
     _fast_kernels_option(p)
     p.set_defaults(func=cmd_rescore)
 
+
+def _register_verify(sub) -> None:
+    """``repro verify``: the newest run against a committed baseline."""
     p = sub.add_parser("verify", help="compare the newest run with a committed baseline (exit 1 on drift)")
     p.add_argument("tables", nargs="+", metavar="TABLE")
     _common(p)

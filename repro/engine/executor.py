@@ -217,33 +217,18 @@ def execute(targets: Iterable[Job], *, store: Store | None = None, jobs: int = 1
     flag: dict[str, bool] = {}
     try:
         with _sigterm_as_interrupt(flag):
-            if backend is not None and to_run:
-                with backend(store, hook, by_key, threads_per_job) as b:
-                    _run_graph(to_run, dec, results, finish, b, flag, keep_going)
-            elif jobs <= 1 or len(to_run) <= 1:
-                _run_inline(to_run, dec, results, store, finish, hook, threads_per_job,
-                            keep_going)
-            else:
-                if threads_per_job is None:
-                    threads_per_job = max(1, (os.cpu_count() or 1) // jobs)
-                with _PoolBackend(store, hook, by_key, min(jobs, len(to_run)),
-                                  threads_per_job) as b:
-                    _run_graph(to_run, dec, results, finish, b, flag, keep_going)
+            _run_jobs(to_run, dec, results, finish, store=store, hook=hook, by_key=by_key,
+                      jobs=jobs, threads_per_job=threads_per_job, keep_going=keep_going,
+                      backend=backend, flag=flag)
     except KeyboardInterrupt:
         report.interrupted = True
-        for j in to_run:
-            if j.key() not in results:
-                finish(JobResult(j, j.key(), CANCELLED))
-        report.results = [results[j.key()] for j in order]
+        _stopped(report, to_run, order, results, finish)
         if recorder is not None:
             recorder.interrupt("interrupted (SIGTERM)" if flag.get("sigterm") else "interrupted")
         hook.graph_finished(report)
         raise
     except BaseException as e:
-        for j in to_run:
-            if j.key() not in results:
-                finish(JobResult(j, j.key(), CANCELLED))
-        report.results = [results[j.key()] for j in order]
+        _stopped(report, to_run, order, results, finish)
         failed = [r for r in report.results if r.status == FAILED]
         if recorder is not None:
             recorder.fail(failed[0].error if failed else f"{type(e).__name__}: {e}")
@@ -252,6 +237,33 @@ def execute(targets: Iterable[Job], *, store: Store | None = None, jobs: int = 1
     report.results = [results[j.key()] for j in order]
     hook.graph_finished(report)
     return report
+
+
+def _run_jobs(to_run, dec, results, finish, *, store, hook, by_key, jobs, threads_per_job,
+              keep_going, backend, flag) -> None:
+    """Run the jobs ``to_run`` where :func:`execute` was asked to: on ``backend`` when there is
+    one (and something to run), inline for ``jobs=1`` or a single job, else on this machine's
+    process pool of ``min(jobs, len(to_run))`` workers (``threads_per_job`` defaulting to
+    ``cpu_count // jobs``)."""
+    if backend is not None and to_run:
+        with backend(store, hook, by_key, threads_per_job) as b:
+            _run_graph(to_run, dec, results, finish, b, flag, keep_going)
+    elif jobs <= 1 or len(to_run) <= 1:
+        _run_inline(to_run, dec, results, store, finish, hook, threads_per_job, keep_going)
+    else:
+        if threads_per_job is None:
+            threads_per_job = max(1, (os.cpu_count() or 1) // jobs)
+        with _PoolBackend(store, hook, by_key, min(jobs, len(to_run)), threads_per_job) as b:
+            _run_graph(to_run, dec, results, finish, b, flag, keep_going)
+
+
+def _stopped(report: ExecutionReport, to_run, order, results, finish) -> None:
+    """When the graph stopped early: record every job of ``to_run`` that has no result yet as
+    CANCELLED and put every job's result in ``report``, in graph order."""
+    for j in to_run:
+        if j.key() not in results:
+            finish(JobResult(j, j.key(), CANCELLED))
+    report.results = [results[j.key()] for j in order]
 
 
 def _annotate(e: BaseException, job: Job, key: str) -> None:

@@ -19,6 +19,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from repro.engine.evaluator_step import evaluators as _evaluators
+from repro.engine.evaluator_step import train_evaluators_side_by_side
 from repro.engine.footer import table_footer as _footer
 from repro.engine.gate_step import check_gate, stored_by
 from repro.engine.table_facts import test_sets_stored
@@ -68,40 +70,6 @@ def table_scale(name: str, dataset: str | None):
     return resolve_scale(name, dataset)
 
 
-def _evaluators(plan, *, train: bool, progress: bool, weights: bool = True, rec=None,
-                trained: frozenset = frozenset(), log=None) -> dict[str, str]:
-    """Describe (and, with ``train``, train or load) every band's evaluator; without
-    ``weights`` a stored evaluator is described from its record (no weights read: nothing
-    will be scored, :func:`_measurements_stored`), one not stored yet is still trained.
-    With a run record ``rec`` each evaluator's store key is recorded as read, or written when
-    this run trained it (here, or side by side: ``trained``); ``log(line)`` hears when each
-    one is ready (progress lines, :mod:`repro.engine.progress`)."""
-    from repro.engine.steps import evaluator_for
-
-    out: dict[str, str] = {}
-    for b in plan.bands:
-        if b.evaluator is None or b.evaluator_key is None or b.evaluator_key in out:
-            continue
-        e = b.evaluator
-        if not train:
-            out[b.evaluator_key] = f"{e['kind']} on {e['dataset']} (store key {b.evaluator_key[:12]})"
-            continue
-        if progress:
-            print(f"repro: evaluator {e['kind']} on {e['dataset']} ({e['scale']})…", file=sys.stderr)
-        if log is not None:  # training one can take minutes: say it started
-            log(f"evaluator {e['kind']} on {e['dataset']}: training or loading…")
-        ev = evaluator_for(b.step_config(plan.dataset, with_evaluator=True), weights=weights)
-        out[b.evaluator_key] = ev.describe()
-        key = ev.meta.get("store_key") or b.evaluator_key
-        hit = bool(ev.meta.get("store_hit", True)) and key not in trained
-        if rec is not None:
-            stored_by(rec)(key, hit)
-        if log is not None:
-            log(f"evaluator {e['kind']} on {e['dataset']} "
-                f"{'loaded' if hit else 'trained'} [{key[:12]}]")
-    return out
-
-
 def _measurements_stored(plans, force) -> bool:
     """Whether every measurement the plans ask for is already in the store and nothing is
     forced: then no job will score, so the evaluators' weights need not be read (their
@@ -114,53 +82,6 @@ def _measurements_stored(plans, force) -> bool:
 
     store = Store()
     return all(store.has(j.key()) for p in plans for rp in p.rows for j in _row_targets(rp))
-
-
-def _train_one_evaluator(cfg: dict) -> str:
-    """Worker of :func:`_train_evaluators_side_by_side` (a top-level function: picklable)."""
-    from repro.engine.steps import evaluator_for
-
-    return evaluator_for(cfg).describe()
-
-
-def _train_evaluators_side_by_side(plans, jobs: int, progress: bool, log=None) -> frozenset:
-    """Train the evaluators the plans need and the store lacks, up to ``jobs`` at a time in
-    worker processes (each trains with its settings' fixed thread count, so the weights are the
-    same as one after another); :func:`_evaluators` then loads them.  A failure is left for
-    the sequential pass to raise in the parent, with its usual message.  Returns the store
-    keys of those trained here (the run records count them as written)."""
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
-
-    from repro.store.objects import Store
-
-    store, todo = Store(), {}
-    for p in plans:
-        if not p.jobs():
-            continue
-        for b in p.bands:
-            if b.evaluator is None or b.evaluator_key is None or b.evaluator_key in todo:
-                continue
-            if store.get(b.evaluator_key) is None:
-                todo[b.evaluator_key] = b.step_config(p.dataset, with_evaluator=True)
-    if len(todo) < 2:
-        return frozenset()
-    if progress:
-        print(f"repro: training {len(todo)} evaluators, {min(jobs, len(todo))} at a time…",
-              file=sys.stderr)
-    done = set()
-    with ProcessPoolExecutor(max_workers=min(jobs, len(todo)),
-                             mp_context=mp.get_context("spawn")) as pool:
-        futures = {key: pool.submit(_train_one_evaluator, cfg) for key, cfg in todo.items()}
-        for key, f in futures.items():
-            try:
-                f.result()
-            except Exception:  # noqa: BLE001 - re-raised by the sequential pass
-                continue
-            done.add(key)
-            if log is not None:
-                log(f"evaluator trained [{key[:12]}]")
-    return frozenset(done)
 
 
 def run_table(name: str, *, scale: str = "quick", dataset: str | None = None, jobs: int = 1,
@@ -206,7 +127,7 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
 
     check_kernels()  # the evaluators and the gate compute in this process (repro/kernels.py)
 
-    from repro.engine.tables import build_plan, collect_trainings, collect_values
+    from repro.engine.tables import build_plan
     from repro.eval.gate import resolve_gate
     from repro.store.runs import RunRecorder
 
@@ -237,7 +158,7 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
         stored = _measurements_stored(plans, force)  # decide hits first: no scoring, no weights
         trained: frozenset = frozenset()
         if jobs > 1 and not stored:
-            trained = _train_evaluators_side_by_side(plans, jobs, progress, log)
+            trained = train_evaluators_side_by_side(plans, jobs, progress, log)
         evaluators = [_evaluators(p, train=bool(p.jobs()), progress=progress, weights=not stored,
                                   rec=rec, trained=trained, log=log)
                       for p, rec in zip(plans, recs)]
@@ -248,24 +169,32 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
                                   backend=backend, hook=hook)
         for p, rec, ev, gate, (reports, counts) in zip(plans, recs, evaluators, gate_records,
                                                         executed):
-            values = collect_values(p, reports)
-            rec.add_values(values)
-            trainings = collect_trainings(p, reports)
-            rec.write_trainings(trainings)
-            summary = _summary(p, values, trainings, stored_by(rec))
-            summary["evaluators"] = ev
-            summary["gate"] = gate
-            summary["footer"] = _footer(p, ev, rec.run_id, summary.get("budgets"), trainings,
-                                        kernels=(rec.data.get("env") or {}).get("kernels"),
-                                        gate=gate)
-            summary["counts"] = counts
-            test_sets = test_sets_stored(p, stored_by(rec))
-            if test_sets:
-                summary["test_sets"] = test_sets
-            rec.write_summary(summary)
-            rec.finish()
-            out.append((p, summary, rec.run_id))
+            out.append((p, _finish_run(p, rec, ev, gate, reports, counts), rec.run_id))
     return out
+
+
+def _finish_run(plan, rec, evaluators: dict, gate: dict, reports: dict, counts: dict) -> dict:
+    """End one table's run once its graph has run: its raw values and training records written
+    to the run record ``rec``, its summary (with the evaluators, the gate, the footer, the job
+    counts and the stored test sets) written, the run marked finished; returns the summary."""
+    from repro.engine.tables import collect_trainings, collect_values
+
+    values = collect_values(plan, reports)
+    rec.add_values(values)
+    trainings = collect_trainings(plan, reports)
+    rec.write_trainings(trainings)
+    summary = _summary(plan, values, trainings, stored_by(rec))
+    summary["evaluators"] = evaluators
+    summary["gate"] = gate
+    summary["footer"] = _footer(plan, evaluators, rec.run_id, summary.get("budgets"), trainings,
+                                kernels=(rec.data.get("env") or {}).get("kernels"), gate=gate)
+    summary["counts"] = counts
+    test_sets = test_sets_stored(plan, stored_by(rec))
+    if test_sets:
+        summary["test_sets"] = test_sets
+    rec.write_summary(summary)
+    rec.finish()
+    return summary
 
 
 def _summary(plan, values: list[dict], trainings: list[dict], stored=None) -> dict:

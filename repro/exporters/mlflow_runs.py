@@ -179,8 +179,7 @@ def _add(target: dict, paths: dict, key: str, value: str, path: list) -> None:
 def build(rec, trainings: list[dict] | None = None, *, experiment: str | None = None) -> Export:
     """The params, tags and metrics of run record ``rec`` (:class:`repro.store.runs.RunRecord`)
     and ``trainings`` (its ``trainings.json``), as the module docstring lays them out."""
-    run, summary = rec.run, rec.summary or {}
-    cfg = run.get("config") or {}
+    run = rec.run
     table = run.get("table")
     ex = Export(run_id=rec.run_id, experiment=experiment or table or "repro",
                 run_name=" ".join(str(x) for x in (table, run.get("scale"), rec.run_id) if x),
@@ -189,11 +188,21 @@ def build(rec, trainings: list[dict] | None = None, *, experiment: str | None = 
                 end_ms=_ms(run.get("ended")))
     keys: dict[str, Any] = {"schema": 1, "run_id": rec.run_id, "params": {}, "tags": {},
                             "metrics": {}, "missing_values": []}
+    _build_params(ex, keys, run, trainings)
+    _build_tags(ex, keys, rec)
+    _build_metrics(ex, keys, rec, trainings)
+    ex.keys = keys
+    return ex
 
-    # params
+
+def _build_params(ex: Export, keys: dict, run: Mapping[str, Any],
+                  trainings: list[dict] | None) -> None:
+    """:func:`build`'s params: the run's fields and resolved config flattened, the
+    fingerprints, and each trained row's method config (one per seed where they differ)."""
+    cfg = run.get("config") or {}
     evaluators = sorted({b.get("evaluator_key") for b in cfg.get("bands") or []
                          if b.get("evaluator_key")})
-    top = {"table": table, "scale": run.get("scale"), "dataset": run.get("dataset"),
+    top = {"table": run.get("table"), "scale": run.get("scale"), "dataset": run.get("dataset"),
            "spec": run.get("spec") or {}, "config": cfg, "git": run.get("git") or {},
            "fingerprints": {"data": cfg.get("data_fingerprint"), "evaluators": evaluators,
                             "spec": (run.get("spec") or {}).get("hash")}}
@@ -216,7 +225,13 @@ def build(rec, trainings: list[dict] | None = None, *, experiment: str | None = 
         _add(ex.params, keys["params"], k,
              _fit(_text(v), MAX_PARAM_VALUE, f"record/{_record_file(path)}"), path)
 
-    # tags
+
+def _build_tags(ex: Export, keys: dict, rec) -> None:
+    """:func:`build`'s tags: the run's ``repro.*`` fields, MLflow's run name and commit, the
+    environment and packages, then each claim's (with its probability as a metric) and each
+    row's status."""
+    run, summary = rec.run, rec.summary or {}
+
     def tag(key: str, v: Any, path: list, where: str = "record/run.json") -> None:
         if v is None:
             return
@@ -255,7 +270,11 @@ def build(rec, trainings: list[dict] | None = None, *, experiment: str | None = 
         tag(f"{base}.reason", (st or {}).get("reason"), ["summary", "rows", row, "reason"],
             "record/summary.json")
 
-    # metrics: every replicate value, the summary's means, the learning curves
+
+def _build_metrics(ex: Export, keys: dict, rec, trainings: list[dict] | None) -> None:
+    """:func:`build`'s metrics: every replicate value (a missing one noted in ``keys``), the
+    summary's means, the learning curves."""
+    summary = rec.summary or {}
     for v in rec.values:
         row, col, rep = str(v["row"]), str(v["column"]), int(v["replicate"])
         mk = f"value/{key_part(row)}/{key_part(col)}"
@@ -289,8 +308,6 @@ def build(rec, trainings: list[dict] | None = None, *, experiment: str | None = 
                 ex.metrics.setdefault(mk, {})[step] = float(x)
                 _meaning(keys, mk, {"row": t.get("row"), "seed": t.get("seed"), "term": term,
                                     "step": "epoch"})
-    ex.keys = keys
-    return ex
 
 
 def _meaning(keys: dict, key: str, meaning: dict) -> None:

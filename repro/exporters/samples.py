@@ -104,21 +104,9 @@ def _pieces(band, g, item: int | None):
                                          "frames": n}
 
 
-def export_samples(rs, out: str | Path, *, row: str | None = None,
-                   replicate: int | str = 0, item: int | None = None, fmt: str = "bvh",
-                   dummy_root: bool = False, band: int | None = None) -> dict:
-    """Write the chosen samples of a run (:func:`repro.engine.run_samples.run_samples`) into
-    the folder ``out``; returns the ``export.json`` record.  Every choice is checked (and every
-    chosen sample read) before the first file is written, so a bad ``item`` writes nothing.
-    ``band``: only that band of the table (``--list`` shows them; an ``item`` is a test item
-    in a single-action band and a test sequence in a multi-action one)."""
-    import torch
-
-    from repro.data.bvh_write import write_bvh
-    from repro.store.atomic import output_dir, write_output
-
-    if fmt not in FORMATS:
-        raise ConfigError(f"unknown export format {fmt!r} (choose from {', '.join(FORMATS)})")
+def _chosen_rows(rs, *, row: str | None, replicate: int | str, band: int | None) -> list:
+    """The generated rows of run samples ``rs`` that ``band``, ``row`` and ``replicate`` choose
+    (:func:`export_samples`), each choice checked; an error when none of them is available."""
     if band is not None and not 0 <= band < len(rs.bands):
         raise ConfigError(f"--band {band}: {rs.spec.id} has bands 0..{len(rs.bands) - 1} "
                           "(repro export --list shows them)")
@@ -141,8 +129,13 @@ def export_samples(rs, out: str | Path, *, row: str | None = None,
     if unavailable and len(unavailable) == len(rows):
         raise ConfigError(f"{rs.spec.id} run {rs.run_id}: {unavailable[0].row_id}: "
                           f"{unavailable[0].reason}")
-    multi_band = len({r.band for r in rows}) > 1
-    record = {"schema": 1, "table": rs.spec.id, "run": rs.run_id, "format": fmt, "files": []}
+    return rows
+
+
+def _loaded_pieces(rs, rows: list, item: int | None, fmt: str, record: dict) -> list:
+    """Read the samples of every available row in ``rows`` (an unavailable one is noted in
+    ``record["skipped"]``); returns (row, band, samples, *piece) of every item to export, each
+    :func:`_pieces` piece (``item`` checked there)."""
     todo = []
     for r in rows:
         if not r.available:
@@ -158,43 +151,79 @@ def export_samples(rs, out: str | Path, *, row: str | None = None,
                               "positions only (ODMO's xyz windows); BVH needs rotations: use "
                               "--format npz")
         todo += [(r, b, g, *piece) for piece in _pieces(b, g, item)]  # checks `item`
+    return todo
+
+
+def _write_npz(rs, out: Path, name: str, sk, fps: float, r, meta: dict, **arrays) -> None:
+    """Write ``arrays`` with the skeleton's names and parents, ``fps`` and the meta of row
+    ``r`` as the ``.npz`` ``out / name``."""
+    from repro.store.atomic import write_output
+
+    buf = io.BytesIO()
+    np.savez_compressed(
+        buf, **arrays, names=np.array(sk.names), parents=np.array(sk.parents, dtype=np.int64),
+        fps=np.float64(fps), meta=np.array(json.dumps(
+            {"table": rs.spec.id, "run": rs.run_id, "row": r.row_id, **meta}, sort_keys=True)))
+    write_output(out / name, buf.getvalue())
+
+
+def _write_piece(rs, out: Path, stem: str, r, b, g, parts, meta: dict, *, fmt: str,
+                 dummy_root: bool) -> tuple[str, float]:
+    """Write one exported item (motion slices ``parts`` of samples ``g``) as ``stem`` plus
+    the format's suffix in ``out``; returns the file's name and its frame rate."""
+    import torch
+
+    from repro.data.bvh_write import write_bvh
+
+    if not hasattr(g, "motion"):  # joint positions only (ODMO's windows): npz
+        (i, n), = parts
+        name, fps = f"{stem}.npz", g.fps
+        _write_npz(rs, out, name, b.items.train.skeleton, fps, r, meta,
+                   joints=np.asarray(g.joints[i, :n], np.float64))
+        return name, fps
+    m = g.motion
+    sk, fps = m.skeleton, m.fps
+    root = torch.cat([m.root[i, :n] for i, n in parts]).double()
+    rot6d = torch.cat([m.rot6d[i, :n] for i, n in parts])
+    one = m.replace(root=root[None], rot6d=rot6d[None])
+    if fmt == "bvh":
+        from repro.data.bandai import DUMMY_ROOT
+
+        name = f"{stem}.bvh"
+        try:  # written beside the name and renamed: a link there is replaced
+            write_bvh(out / name, sk, root.numpy(), one.rotmats()[0].double().numpy(),
+                      fps, dummy_root=DUMMY_ROOT if dummy_root else None)
+        except OSError as e:
+            raise ConfigError(f"cannot write {str(out / name)!r}: "
+                              f"{e.strerror or e}") from None
+    else:
+        name = f"{stem}.npz"
+        _write_npz(rs, out, name, sk, fps, r, meta, joints=one.joints()[0].double().numpy(),
+                   root=root.numpy(), rot6d=rot6d.double().numpy())
+    return name, fps
+
+
+def export_samples(rs, out: str | Path, *, row: str | None = None,
+                   replicate: int | str = 0, item: int | None = None, fmt: str = "bvh",
+                   dummy_root: bool = False, band: int | None = None) -> dict:
+    """Write the chosen samples of a run (:func:`repro.engine.run_samples.run_samples`) into
+    the folder ``out``; returns the ``export.json`` record.  Every choice is checked (and every
+    chosen sample read) before the first file is written, so a bad ``item`` writes nothing.
+    ``band``: only that band of the table (``--list`` shows them; an ``item`` is a test item
+    in a single-action band and a test sequence in a multi-action one)."""
+    from repro.store.atomic import output_dir, write_output
+
+    if fmt not in FORMATS:
+        raise ConfigError(f"unknown export format {fmt!r} (choose from {', '.join(FORMATS)})")
+    rows = _chosen_rows(rs, row=row, replicate=replicate, band=band)
+    multi_band = len({r.band for r in rows}) > 1
+    record = {"schema": 1, "table": rs.spec.id, "run": rs.run_id, "format": fmt, "files": []}
+    todo = _loaded_pieces(rs, rows, item, fmt, record)
     out = output_dir(out)  # '' (the current folder), a file, a device: one error line
-
-    def npz(name: str, sk, fps: float, r, meta: dict, **arrays) -> None:
-        buf = io.BytesIO()
-        np.savez_compressed(
-            buf, **arrays, names=np.array(sk.names), parents=np.array(sk.parents, dtype=np.int64),
-            fps=np.float64(fps), meta=np.array(json.dumps(
-                {"table": rs.spec.id, "run": rs.run_id, "row": r.row_id, **meta}, sort_keys=True)))
-        write_output(out / name, buf.getvalue())
-
     for r, b, g, suffix, parts, meta in todo:
         stem = f"{r.row_id}{f'-band{r.band}' if multi_band else ''}-r{r.replicate}-{suffix}"
-        if not hasattr(g, "motion"):  # joint positions only (ODMO's windows): npz
-            (i, n), = parts
-            name, fps = f"{stem}.npz", g.fps
-            npz(name, b.items.train.skeleton, fps, r, meta,
-                joints=np.asarray(g.joints[i, :n], np.float64))
-        else:
-            m = g.motion
-            sk, fps = m.skeleton, m.fps
-            root = torch.cat([m.root[i, :n] for i, n in parts]).double()
-            rot6d = torch.cat([m.rot6d[i, :n] for i, n in parts])
-            one = m.replace(root=root[None], rot6d=rot6d[None])
-            if fmt == "bvh":
-                from repro.data.bandai import DUMMY_ROOT
-
-                name = f"{stem}.bvh"
-                try:  # written beside the name and renamed: a link there is replaced
-                    write_bvh(out / name, sk, root.numpy(), one.rotmats()[0].double().numpy(),
-                              fps, dummy_root=DUMMY_ROOT if dummy_root else None)
-                except OSError as e:
-                    raise ConfigError(f"cannot write {str(out / name)!r}: "
-                                      f"{e.strerror or e}") from None
-            else:
-                name = f"{stem}.npz"
-                npz(name, sk, fps, r, meta, joints=one.joints()[0].double().numpy(),
-                    root=root.numpy(), rot6d=rot6d.double().numpy())
+        name, fps = _write_piece(rs, out, stem, r, b, g, parts, meta, fmt=fmt,
+                                 dummy_root=dummy_root)
         record["files"].append({"file": name, "row": r.row_id, "band": r.band,
                                 "protocol": b.protocol_id, "replicate": r.replicate,
                                 "seed": r.seed, "fps": fps, **meta})

@@ -205,20 +205,23 @@ def _clip_text(text: str, size: int, width: float) -> str:
     return text + ".." if text else ""
 
 
-def render_strip(panels: list[Panel], parents: Sequence[int], names: Sequence[str], *,
-                 frames: Sequence[int] | None = None, key_frames: int = 8,
-                 top_view: bool = False, title: str | None = None,
-                 cell: tuple[int, int] = (96, 144),
-                 metres_per_cell_height: float = 2.4,
-                 sides: Sequence[int] | None = None) -> StripImage:
-    """Render ``panels`` (top to bottom) at the same key frames; ``cell`` = (width, height) px;
-    ``sides`` (per joint 0 left, 1 right, 2 centre; default :func:`side_of` of each name, see
-    :func:`skeleton_sides`) chooses the bone colours.
+@dataclass
+class _Layout:
+    """Where a strip's parts go (:func:`_strip_layout`): the label margin, the image size, the
+    header's rows, each band's top and each cell's box."""
 
-    ``frames`` None: ``key_frame_indices(min T, key_frames, include=<segment starts but 0 of
-    the first panel with segments>)``.  Raises ValueError on bad shapes or frame indices."""
-    parents = _check(panels, parents, names)
-    joints = [np.asarray(p.joints, dtype=np.float64) for p in panels]
+    margin: int
+    W: int
+    H: int
+    multi: bool
+    legend_y: int | None
+    head_y: int
+    tops: list[int]
+    boxes: dict
+
+
+def _strip_frames(panels, joints, frames, key_frames: int) -> list[int]:
+    """The key frames of :func:`render_strip` (its docstring), checked against every panel."""
     T = min(len(a) for a in joints)
     if frames is None:
         sp = next((p for p in panels if p.segments), None)
@@ -232,18 +235,25 @@ def render_strip(panels: list[Panel], parents: Sequence[int], names: Sequence[st
         if bad:
             raise ValueError(f"panel {p.label!r}: frame {bad[0]} is out of range "
                              f"[0, {len(a) - 1}]")
-    cw, ch = int(cell[0]), int(cell[1])
-    ppm = ch / float(metres_per_cell_height)
-    ground_off = ch - round(_GROUND_FRAC * ch)
+    return frames
+
+
+def _strip_sides(sides, names) -> np.ndarray:
+    """Per joint 0 left, 1 right, 2 centre: ``sides`` checked, or :func:`side_of` of each
+    name."""
     if sides is not None and len(sides) != len(names):
         raise ValueError(f"{len(sides)} sides for {len(names)} joints")
     sides = np.array([side_of(n) for n in names] if sides is None else sides, np.int64)
     if ((sides < 0) | (sides > 2)).any():
         raise ValueError("sides are 0 (left), 1 (right) or 2 (centre)")
-    child = np.flatnonzero(parents >= 0)
+    return sides
+
+
+def _strip_layout(panels, frames, top_view: bool, title: str | None, cw: int, ch: int,
+                  texts: list) -> _Layout:
+    """Lay a strip out top to bottom (title, legend, header, one band per panel); the title's
+    text goes into ``texts``."""
     multi = any(p.segments for p in panels)
-    # layout
-    texts: list[tuple[int, int, str, int, tuple]] = []
     margin = int(max(72, min(220, max(font(11).getlength(p.label) for p in panels) + 2 * _PAD)))
     ncol = len(frames) + bool(top_view)
     W = margin + ncol * cw + _PAD
@@ -259,13 +269,15 @@ def render_strip(panels: list[Panel], parents: Sequence[int], names: Sequence[st
         tops.append(y)
         y += ch + (_BAR_H if p.segments else 0) + _GAP
     H = y - _GAP + _PAD
-    canvas = np.zeros((H, W, 4), np.float32)
-    depth = np.full((H, W), np.inf, np.float32)
-    jidx = np.zeros((H, W), np.uint32)
-    x_cam = max(float(a[frames, :, 0].max()) for a in joints) + 1.0
     boxes = {(i, k): (margin + k * cw, tops[i], margin + (k + 1) * cw, tops[i] + ch)
              for i in range(len(panels)) for k in range(ncol)}
-    # header
+    return _Layout(margin, W, H, multi, legend_y, head_y, tops, boxes)
+
+
+def _strip_header(canvas, texts, panels, frames, lay: _Layout, cw: int, top_view: bool):
+    """The header row: "frame", each column's frame number, the top view's title, and the
+    legend of the multi-action marks when any panel has segments."""
+    head_y, margin = lay.head_y, lay.margin
     texts.append((_PAD, head_y, "frame", 10, _GREY))
     offsets = {p.frame_offset for p in panels}
     shared = offsets.pop() if len(offsets) == 1 else 0
@@ -275,18 +287,69 @@ def render_strip(panels: list[Panel], parents: Sequence[int], names: Sequence[st
                       _INK))
     if top_view:
         texts.append((margin + len(frames) * cw + 4, head_y, "top view (x, z)", 10, _INK))
-    if multi:
-        x = _PAD
-        fill(canvas, legend_y + 1, legend_y + 12, x, x + 2, _INK)
-        texts.append((x + 6, legend_y, "junction", 10, _INK))
-        x += 12 + int(font(10).getlength("junction"))
-        dashed_border(canvas, (x, legend_y, x + 14, legend_y + 12), _GREY, 3, 2)
-        texts.append((x + 4, legend_y, "T", 10, _INK))
-        texts.append((x + 18, legend_y, "transition window", 10, _INK))
-        x += 24 + int(font(10).getlength("transition window"))
-        for i in range(4):
-            fill(canvas, legend_y + 4, legend_y + 9, x + 8 * i, x + 8 * i + 7, SEGMENT_PALETTE[i])
-        texts.append((x + 36, legend_y, "action segments", 10, _INK))
+    if lay.multi:
+        _strip_legend(canvas, texts, lay.legend_y)
+
+
+def _strip_legend(canvas, texts, legend_y: int) -> None:
+    """The legend line of the multi-action marks: junction, transition window, segments."""
+    x = _PAD
+    fill(canvas, legend_y + 1, legend_y + 12, x, x + 2, _INK)
+    texts.append((x + 6, legend_y, "junction", 10, _INK))
+    x += 12 + int(font(10).getlength("junction"))
+    dashed_border(canvas, (x, legend_y, x + 14, legend_y + 12), _GREY, 3, 2)
+    texts.append((x + 4, legend_y, "T", 10, _INK))
+    texts.append((x + 18, legend_y, "transition window", 10, _INK))
+    x += 24 + int(font(10).getlength("transition window"))
+    for i in range(4):
+        fill(canvas, legend_y + 4, legend_y + 9, x + 8 * i, x + 8 * i + 7, SEGMENT_PALETTE[i])
+    texts.append((x + 36, legend_y, "action segments", 10, _INK))
+
+
+def _top_view_parts(canvas, panels, joints, frames, boxes, cw: int, ch: int, W: int) -> list:
+    """Each band's top-view cell (module docstring): its outline drawn, its trajectory and
+    key-frame dots returned as parts to composite, at one scale for all bands."""
+    parts = []
+    roots = [a[:, 0, [0, 2]] for a in joints]
+    ext = np.max([r.max(0) - r.min(0) for r in roots], axis=0)
+    scale = min((ch - 16) / max(ext[0], 0.5), (cw - 16) / max(ext[1], 0.5))
+    for i, (p, r) in enumerate(zip(panels, roots)):
+        box = boxes[(i, len(frames))]
+        _outline(canvas, box)
+        cids = np.array([R.DOT_ID if s < 0 else _SEG0 + s % len(SEGMENT_PALETTE)
+                         for s in _segment_index(p, frames)])
+        parts.append(R.top_view(r, np.array(frames), cids, box, scale, W))
+    return parts
+
+
+def render_strip(panels: list[Panel], parents: Sequence[int], names: Sequence[str], *,
+                 frames: Sequence[int] | None = None, key_frames: int = 8,
+                 top_view: bool = False, title: str | None = None,
+                 cell: tuple[int, int] = (96, 144),
+                 metres_per_cell_height: float = 2.4,
+                 sides: Sequence[int] | None = None) -> StripImage:
+    """Render ``panels`` (top to bottom) at the same key frames; ``cell`` = (width, height) px;
+    ``sides`` (per joint 0 left, 1 right, 2 centre; default :func:`side_of` of each name, see
+    :func:`skeleton_sides`) chooses the bone colours.
+
+    ``frames`` None: ``key_frame_indices(min T, key_frames, include=<segment starts but 0 of
+    the first panel with segments>)``.  Raises ValueError on bad shapes or frame indices."""
+    parents = _check(panels, parents, names)
+    joints = [np.asarray(p.joints, dtype=np.float64) for p in panels]
+    frames = _strip_frames(panels, joints, frames, key_frames)
+    cw, ch = int(cell[0]), int(cell[1])
+    ppm = ch / float(metres_per_cell_height)
+    ground_off = ch - round(_GROUND_FRAC * ch)
+    sides = _strip_sides(sides, names)
+    child = np.flatnonzero(parents >= 0)
+    texts: list[tuple[int, int, str, int, tuple]] = []
+    lay = _strip_layout(panels, frames, top_view, title, cw, ch, texts)
+    margin, W, tops, boxes = lay.margin, lay.W, lay.tops, lay.boxes
+    canvas = np.zeros((lay.H, W, 4), np.float32)
+    depth = np.full((lay.H, W), np.inf, np.float32)
+    jidx = np.zeros((lay.H, W), np.uint32)
+    x_cam = max(float(a[frames, :, 0].max()) for a in joints) + 1.0
+    _strip_header(canvas, texts, panels, frames, lay, cw, top_view)
     # cells
     parts = []
     for i, (p, a) in enumerate(zip(panels, joints)):
@@ -304,15 +367,7 @@ def render_strip(panels: list[Panel], parents: Sequence[int], names: Sequence[st
             _segment_marks(canvas, texts, p, frames, [boxes[(i, k)] for k in range(len(frames))],
                            cw)
     if top_view:
-        roots = [a[:, 0, [0, 2]] for a in joints]
-        ext = np.max([r.max(0) - r.min(0) for r in roots], axis=0)
-        scale = min((ch - 16) / max(ext[0], 0.5), (cw - 16) / max(ext[1], 0.5))
-        for i, (p, r) in enumerate(zip(panels, roots)):
-            box = boxes[(i, len(frames))]
-            _outline(canvas, box)
-            cids = np.array([R.DOT_ID if s < 0 else _SEG0 + s % len(SEGMENT_PALETTE)
-                             for s in _segment_index(p, frames)])
-            parts.append(R.top_view(r, np.array(frames), cids, box, scale, W))
+        parts += _top_view_parts(canvas, panels, joints, frames, boxes, cw, ch, W)
     R.composite(canvas, depth, jidx, parts, _COLOURS)
     R.draw_texts(canvas, texts)
     return StripImage(R.to_rgba8(canvas), depth, jidx, frames, boxes, ppm, ground_off)

@@ -153,27 +153,9 @@ def _drawn_by() -> str:
         " + uncommitted changes" if g.get("dirty") else "")
 
 
-def table_page(table_id: str, out: Path, *, scale: str = "quick", dataset: str | None = None,
-               run: str | None = None, items: int = 2, strips: bool = True) -> dict:
-    """Write one table's page and its assets; returns what it holds (for the index)."""
-    from repro.engine.run_samples import run_samples
-    from repro.engine.runner import table_spec, table_view
-    from repro.render.plots import figure_plot, learning_curve_plot, table_plot
-    from repro.report.strip_sets import write_strips
-    from repro.store.runs import read_trainings
-
-    from repro.engine.runner import table_run
-    from repro.store.runs import read_run_json
-
-    spec = table_spec(table_id)
-    path = table_run(spec, scale, dataset, run)
-    rj = read_run_json(path) if path is not None else None
-    # the run asked for, else the newest finished one (the view then says when a newer run
-    # failed): the same folder as ``path``
-    view = table_view(spec.id, scale=scale, dataset=dataset, run=run)
-    name = page_name(spec.id)
-    assets = output_subdir(out, name[:-5])  # a link planted there is replaced, not followed
-    rel = assets.name
+def _page_top(spec, view, path) -> tuple[list[str], str]:
+    """The top of a table's page (a link back, the title, the notes on stand-in data, marks,
+    a failed newest run, a figure not reproduced yet) and the table's state for the index."""
     body = [f"<p><a href=\"index.html\">← all tables</a></p>",
             f"<h1>{E(spec.id)}: {E(spec.title)}</h1>"]
     if view.standin:
@@ -198,11 +180,16 @@ def table_page(table_id: str, out: Path, *, scale: str = "quick", dataset: str |
         why = "; ".join(sorted({f"{r.label}: {r.status}" for r in view.rows}))
         body.append(f"<p class=\"standin\">Not reproduced yet — {E(why)}.</p>")
         state = "not reproduced yet" if path is None else state
-    body += ["<h2>Paper vs reproduced</h2>", html_table(view), "<h2>Claims</h2>",
-             *_claims_html(view)]
+    return body, state
 
-    # plots
-    body.append("<h2>Plots</h2>")
+
+def _plots_html(spec, view, path, assets: Path) -> list[str]:
+    """The page's plots section: the figure (or the cells against the paper's) and the run's
+    learning curves, each drawn into ``assets`` beside its data as CSV."""
+    from repro.render.plots import figure_plot, learning_curve_plot, table_plot
+    from repro.store.runs import read_trainings
+
+    body = ["<h2>Plots</h2>"]
     plots = []
     if isinstance(view, FigureView):
         note = "" if view.x is not None and view.x.values else " (not reproduced yet)"
@@ -219,20 +206,31 @@ def table_page(table_id: str, out: Path, *, scale: str = "quick", dataset: str |
             learning_curve_plot(trainings, assets / "curves.png", data_path=assets / "curves.csv")
             plots.append(("curves.png", "curves.csv", "learning curves of the run's trainings "
                           "(validation dashed)"))
+    rel = assets.name
     for png, data, cap in plots:
         body.append(f"<div class=\"plot\"><img src=\"{rel}/{png}\" alt=\"{E(cap)}\">"
                     f"<p class=\"muted\">{E(cap)} — data: <a href=\"{rel}/{data}\">{data}</a>"
                     "</p></div>")
+    return body
 
-    # strips
-    body.append("<h2>Strips: the motions behind the numbers</h2>")
+
+def _strips_html(spec, view, path, assets: Path, *, items: int,
+                 strips: bool) -> tuple[list[str], int]:
+    """The page's strips section (drawn into ``assets`` from the run's samples, when there is
+    a finished run and strips are asked for) and how many strips it shows."""
+    body = ["<h2>Strips: the motions behind the numbers</h2>"]
     n_strips = 0
     if path is None:
-        body.append("<p class=\"muted\">" + ("No finished run: no samples to draw." if failed
-                                                else "Not run yet: no samples to draw.") + "</p>")
+        body.append("<p class=\"muted\">" + ("No finished run: no samples to draw."
+                                             if view.failed_run
+                                             else "Not run yet: no samples to draw.") + "</p>")
     elif not strips:
         body.append("<p class=\"muted\">Strips were not asked for (--no-strips).</p>")
     else:
+        from repro.engine.run_samples import run_samples
+        from repro.report.strip_sets import write_strips
+
+        rel = assets.name
         rec = write_strips(run_samples(spec.id, run=path), assets, items=items)
         n_strips = len(rec["strips"])
         for st in rec["strips"]:
@@ -250,7 +248,29 @@ def table_page(table_id: str, out: Path, *, scale: str = "quick", dataset: str |
                 r.status == "data unavailable" for r in view.rows) else
                 "no row of this table generated samples")
             body.append(f"<p class=\"muted\">No strips: {E(why)}.</p>")
+    return body, n_strips
 
+
+def table_page(table_id: str, out: Path, *, scale: str = "quick", dataset: str | None = None,
+               run: str | None = None, items: int = 2, strips: bool = True) -> dict:
+    """Write one table's page and its assets; returns what it holds (for the index)."""
+    from repro.engine.runner import table_run, table_spec, table_view
+    from repro.store.runs import read_run_json
+
+    spec = table_spec(table_id)
+    path = table_run(spec, scale, dataset, run)
+    rj = read_run_json(path) if path is not None else None
+    # the run asked for, else the newest finished one (the view then says when a newer run
+    # failed): the same folder as ``path``
+    view = table_view(spec.id, scale=scale, dataset=dataset, run=run)
+    name = page_name(spec.id)
+    assets = output_subdir(out, name[:-5])  # a link planted there is replaced, not followed
+    body, state = _page_top(spec, view, path)
+    body += ["<h2>Paper vs reproduced</h2>", html_table(view), "<h2>Claims</h2>",
+             *_claims_html(view)]
+    body += _plots_html(spec, view, path, assets)
+    strip_body, n_strips = _strips_html(spec, view, path, assets, items=items, strips=strips)
+    body += strip_body
     body.append("<h2>Provenance</h2><dl>" + "".join(
         f"<dt>{E(k)}</dt><dd>{E(v)}</dd>" for k, v in provenance(rj, view)) + "</dl>")
     body += [f"<p class=\"muted\">{E(x)}</p>" for x in view.footer]

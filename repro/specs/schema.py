@@ -482,6 +482,12 @@ def _dups(ids: list[str]) -> list[str]:
 
 def cross_check(spec: TableSpec) -> list[tuple[str, str]]:
     """Problems between the parts of a validated spec, as ``(location, problem)`` pairs."""
+    return [*_check_header(spec), *_check_columns(spec), *_check_rows(spec),
+            *_check_claims(spec)]
+
+
+def _check_header(spec: TableSpec) -> list[tuple[str, str]]:
+    """:func:`cross_check` of the spec's id, paper and kind, then of duplicate ids."""
     out: list[tuple[str, str]] = []
     paper, _, _ = spec.id.partition("/")
     if paper != spec.paper.key:
@@ -500,9 +506,14 @@ def cross_check(spec: TableSpec) -> list[tuple[str, str]]:
                       ("row", [r.id for r in spec.rows]), ("claim", [c.id for c in spec.claims])):
         for d in _dups(ids):
             out.append((f"{what}s", f"duplicate {what} id {d!r}"))
+    return out
 
+
+def _check_columns(spec: TableSpec) -> list[tuple[str, str]]:
+    """:func:`cross_check` of the columns (their groups and reference rows), then of the groups
+    (each needs a column)."""
+    out: list[tuple[str, str]] = []
     group_ids = [g.id for g in spec.groups]
-    col_ids = [c.id for c in spec.columns]
     row_ids = [r.id for r in spec.rows]
     real_rows = [r.id for r in spec.rows if r.method == "real"]
 
@@ -524,7 +535,13 @@ def cross_check(spec: TableSpec) -> list[tuple[str, str]]:
     for i, g in enumerate(spec.groups):
         if not any(c.group == g.id for c in spec.columns):
             out.append((f"groups[{i}] (id {g.id!r})", "no column belongs to this group"))
+    return out
 
+
+def _check_rows(spec: TableSpec) -> list[tuple[str, str]]:
+    """:func:`cross_check` of the rows' reported values against the columns."""
+    out: list[tuple[str, str]] = []
+    col_ids = [c.id for c in spec.columns]
     for i, r in enumerate(spec.rows):
         loc = f"rows[{i}] (id {r.id!r})"
         for cid, cell in r.reported.items():
@@ -541,7 +558,14 @@ def cross_check(spec: TableSpec) -> list[tuple[str, str]]:
                                                      f"column's unit is {col.unit!r}"))
         if spec.kind == "figure" and r.reported:
             out.append((f"{loc}.reported", "a figure prints no numbers; leave 'reported' empty"))
+    return out
 
+
+def _check_claims(spec: TableSpec) -> list[tuple[str, str]]:
+    """:func:`cross_check` of the claims: their columns, rows, ``along`` and ``x_range``."""
+    out: list[tuple[str, str]] = []
+    col_ids = [c.id for c in spec.columns]
+    row_ids = [r.id for r in spec.rows]
     for i, cl in enumerate(spec.claims):
         loc = f"claims[{i}] (id {cl.id!r})"
         for cid in cl.column:

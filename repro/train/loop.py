@@ -151,52 +151,13 @@ def train(
     ckpt_path = None
     if ckpt_dir is not None:
         ckpt_dir = Path(ckpt_dir)
-        ckpt_dir.mkdir(parents=True, exist_ok=True)
         ckpt_path = ckpt_dir / CHECKPOINT
-        cfg_path = ckpt_dir / CONFIG
-        if ckpt_path.exists() and cfg_path.exists():
-            try:
-                saved_cfg = json.loads(cfg_path.read_text())
-                state = torch.load(ckpt_path, map_location="cpu", weights_only=True)
-            except Exception:  # a torn or foreign checkpoint: start afresh
-                state, saved_cfg = None, None
-            if state is not None and saved_cfg == {"key": cfg_key}:
-                model.load_state_dict(state["model"])
-                optimizer.load_state_dict(state["optimizer"])
-                if scheduler is not None and state.get("scheduler") is not None:
-                    scheduler.load_state_dict(state["scheduler"])
-                start_epoch = int(state["epoch"]) + 1
-                resumed_from = start_epoch
-                history = json.loads(state["history"])
-        atomic_write_bytes(cfg_path, canonical_json({"key": cfg_key}))
-        atomic_write_bytes(ckpt_dir / "config.full.json", canonical_json(config))
+        start_epoch, resumed_from, history = _resume(ckpt_dir, config, cfg_key, model,
+                                                     optimizer, scheduler)
 
     for epoch in range(start_epoch, epochs):
-        torch.manual_seed(derive_seed(seed, "epoch", epoch))
-        gen = torch_generator(seed, "batches", epoch)
-        model.train()
-        logged: dict[str, list] = {}   # each scalar's per-step values, converted at the end
-        n = 0
-        for batch in batches(epoch, gen):
-            if not on_cpu:
-                batch = to_device(batch, dev)
-            out = step(model, batch, epoch)
-            loss = out["loss"]
-            if not torch.isfinite(loss):
-                raise FloatingPointError(f"non-finite loss at epoch {epoch}: {float(loss)}")
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            if grad_clip is not None:
-                torch.nn.utils.clip_grad_norm_(model.parameters(), grad_clip)
-            optimizer.step()
-            for k, v in out.items():  # a copy: the step's tensor may alias a parameter
-                logged.setdefault(k, []).append(v.detach().clone() if hasattr(v, "detach") else v)
-            n += 1
-        if scheduler is not None:
-            scheduler.step()
-        rec = {k: _float_sum(vs) / max(n, 1) for k, vs in logged.items()}
-        rec["epoch"] = epoch
-        rec["batches"] = n
+        rec = _train_epoch(model, optimizer, batches, step, seed, epoch, dev, grad_clip,
+                           scheduler)
         if validate is not None:
             rec.update(_validation(model, validate, seed, epoch))
         history.append(rec)
@@ -204,17 +165,91 @@ def train(
             on_epoch(epoch, rec)
         last = epoch == epochs - 1
         if ckpt_path is not None and (last or (epoch + 1) % max(checkpoint_every, 1) == 0):
-            state = {
-                "model": model.state_dict(),
-                "optimizer": optimizer.state_dict(),
-                "scheduler": None if scheduler is None else scheduler.state_dict(),
-                "epoch": epoch,
-                "history": json.dumps(history),
-            }
-            _atomic_torch_save(state if on_cpu else to_device(state, "cpu"), ckpt_path)
+            _save_checkpoint(ckpt_path, model, optimizer, scheduler, epoch, history, on_cpu)
     model.eval()
     return TrainResult(epochs=epochs, resumed_from=resumed_from, history=history,
                        seconds=time.perf_counter() - t0)
+
+
+def _resume(ckpt_dir: Path, config: dict, cfg_key: str, model, optimizer, scheduler
+            ) -> tuple[int, int | None, list]:
+    """Load the checkpoint in ``ckpt_dir`` into the model, optimiser and scheduler when its
+    ``config.json`` holds ``cfg_key`` (a torn or foreign one is ignored), then write the
+    config files beside it; returns ``(start epoch, resumed_from, history)``."""
+    import torch
+
+    ckpt_dir.mkdir(parents=True, exist_ok=True)
+    ckpt_path = ckpt_dir / CHECKPOINT
+    cfg_path = ckpt_dir / CONFIG
+    start_epoch, resumed_from, history = 0, None, []
+    if ckpt_path.exists() and cfg_path.exists():
+        try:
+            saved_cfg = json.loads(cfg_path.read_text())
+            state = torch.load(ckpt_path, map_location="cpu", weights_only=True)
+        except Exception:  # a torn or foreign checkpoint: start afresh
+            state, saved_cfg = None, None
+        if state is not None and saved_cfg == {"key": cfg_key}:
+            model.load_state_dict(state["model"])
+            optimizer.load_state_dict(state["optimizer"])
+            if scheduler is not None and state.get("scheduler") is not None:
+                scheduler.load_state_dict(state["scheduler"])
+            start_epoch = int(state["epoch"]) + 1
+            resumed_from = start_epoch
+            history = json.loads(state["history"])
+    atomic_write_bytes(cfg_path, canonical_json({"key": cfg_key}))
+    atomic_write_bytes(ckpt_dir / "config.full.json", canonical_json(config))
+    return start_epoch, resumed_from, history
+
+
+def _train_epoch(model, optimizer, batches, step, seed: int, epoch: int, dev, grad_clip,
+                 scheduler) -> dict:
+    """One epoch's optimisation: the global torch RNG seeded from ``(seed, epoch)``, the batches
+    drawn from ``(seed, "batches", epoch)`` (moved to the device ``dev`` off the CPU), one
+    optimiser step per batch, then the scheduler's step; returns the epoch's record (the means
+    of the scalars ``step`` returned, ``epoch`` and ``batches``)."""
+    import torch
+
+    torch.manual_seed(derive_seed(seed, "epoch", epoch))
+    gen = torch_generator(seed, "batches", epoch)
+    model.train()
+    logged: dict[str, list] = {}   # each scalar's per-step values, converted at the end
+    n = 0
+    on_cpu = dev.type == "cpu"
+    for batch in batches(epoch, gen):
+        if not on_cpu:
+            batch = to_device(batch, dev)
+        out = step(model, batch, epoch)
+        loss = out["loss"]
+        if not torch.isfinite(loss):
+            raise FloatingPointError(f"non-finite loss at epoch {epoch}: {float(loss)}")
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        if grad_clip is not None:
+            torch.nn.utils.clip_grad_norm_(model.parameters(), grad_clip)
+        optimizer.step()
+        for k, v in out.items():  # a copy: the step's tensor may alias a parameter
+            logged.setdefault(k, []).append(v.detach().clone() if hasattr(v, "detach") else v)
+        n += 1
+    if scheduler is not None:
+        scheduler.step()
+    rec = {k: _float_sum(vs) / max(n, 1) for k, vs in logged.items()}
+    rec["epoch"] = epoch
+    rec["batches"] = n
+    return rec
+
+
+def _save_checkpoint(ckpt_path: Path, model, optimizer, scheduler, epoch: int, history: list,
+                     on_cpu: bool) -> None:
+    """Write the checkpoint after ``epoch`` atomically: model, optimiser and scheduler states
+    (on the CPU), the epoch and the history so far."""
+    state = {
+        "model": model.state_dict(),
+        "optimizer": optimizer.state_dict(),
+        "scheduler": None if scheduler is None else scheduler.state_dict(),
+        "epoch": epoch,
+        "history": json.dumps(history),
+    }
+    _atomic_torch_save(state if on_cpu else to_device(state, "cpu"), ckpt_path)
 
 
 def _float_sum(values: list) -> float:
