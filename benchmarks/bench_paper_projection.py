@@ -10,7 +10,7 @@ On whatever device it finds (CUDA when torch sees one, else the CPU) it times
 2. Table 1's paper-scale sampling: ``--items`` MarioNet samples (paper width, Table 1's test
    items, their own lengths), per item, extrapolated to the paper's samples per replicate.
 
-Then, for all 18 specs, the planner (:func:`repro.engine.tables.build_plan`, as ``repro plan``)
+Then, for all 18 specs, the planner (:func:`repro.engine.table_plan.build_plan`, as ``repro plan``)
 counts each table's jobs at ``paper`` and the projection prices them (the rule is printed with
 the table): a ``train`` job costs its method's epochs (the profile's, with their batch counts)
 × MarioNet's measured time per training item × (the method's parameter count / MarioNet's); a
@@ -112,7 +112,7 @@ def main(argv=None) -> int:
     from repro.data.registry import load_clipset
     from repro.engine.evidence import config_epochs
     from repro.engine.job import topo_order
-    from repro.engine.tables import build_plan
+    from repro.engine.table_plan import build_plan
     from repro.errors import ReproError
     from repro.eval.protocols import get_protocol
     from repro.models.marionet import MarioNet

@@ -70,7 +70,7 @@ UNITS = {"mann": "frame pairs", "odmo": "window pairs", "dlow_gen": "windows",
 
 def train_job_configs(methods, scale, dataset):
     """method -> the resolved config of the first ``train`` job of it in its spec's plan."""
-    from repro.engine.tables import build_plan
+    from repro.engine.table_plan import build_plan
     from repro.specs.load import find_spec
 
     out, plans = {}, {}

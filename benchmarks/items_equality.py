@@ -158,7 +158,7 @@ def dump(path: str) -> None:
     except ImportError:
         from repro.engine.runner import _scale, _spec
     from repro.engine.steps import clipset
-    from repro.engine.tables import build_plan
+    from repro.engine.table_plan import build_plan
     from repro.eval.protocols import get_protocol
     from repro.paths import tables_root
 

@@ -39,7 +39,7 @@ def test_bad_option_is_one_line_exit_2_and_nothing_runs(args, says, tmp_path):
 
 
 def test_parse_seeds_caps_before_allocating():
-    from repro.engine.tables import MAX_SEEDS, parse_seeds
+    from repro.engine.table_plan import MAX_SEEDS, parse_seeds
     from repro.errors import ConfigError
 
     assert parse_seeds("0-4") == (0, 1, 2, 3, 4) and parse_seeds("0,3,7") == (0, 3, 7)

@@ -138,7 +138,7 @@ def test_cpu_adds_nothing_to_a_key_and_cuda_changes_it():
 
 
 def test_plan_keys_follow_the_device():
-    from repro.engine.tables import build_plan
+    from repro.engine.table_plan import build_plan
     from repro.specs.load import find_spec
 
     spec = find_spec("marionette/table1")
@@ -157,7 +157,7 @@ def test_plan_keys_follow_the_device():
 def _plan_jobs(scale):
     """label -> job of quick Table 1's graph at ``scale``."""
     from repro.engine.job import topo_order
-    from repro.engine.tables import build_plan
+    from repro.engine.table_plan import build_plan
     from repro.specs.load import find_spec
 
     plan = build_plan(find_spec("marionette/table1"), scale, "bandai2-mini")

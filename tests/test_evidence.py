@@ -15,7 +15,8 @@ from repro.engine.evidence import (NOT_REPRODUCED_BUDGET, NOT_REPRODUCED_REDUCED
                                    NOT_REPRODUCED_SAMPLING, NOT_REPRODUCED_UNKNOWN, budget_text,
                                    claim_evidence, qualified_verdict, scale_epochs,
                                    training_budget)
-from repro.engine.tables import build_plan, summarise
+from repro.engine.table_plan import build_plan
+from repro.engine.tables import summarise
 from repro.specs.load import find_spec
 from repro.specs.scales import resolve_scale
 

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 from repro.engine.table_view import make_view
-from repro.engine.tables import (Band, RowPlan, TablePlan, _claim, _values_by_cell,
-                                 collect_values, summarise)
+from repro.engine.table_plan import Band, RowPlan, TablePlan
+from repro.engine.tables import _claim, _values_by_cell, collect_values, summarise
 from repro.paths import repo_root
 from repro.report import FORMATS, render
 from repro.report.render import _num

@@ -17,7 +17,7 @@ TABLES = ("multiact/table1", "multiact/table2", "multiact/table3", "multiact/tab
 def plans(tmp_path_factory):
     import os
 
-    from repro.engine.tables import build_plan
+    from repro.engine.table_plan import build_plan
     from repro.specs.load import find_spec
     from repro.specs.scales import resolve_scale
 
@@ -101,7 +101,7 @@ def test_real_rows_differ_by_split(plans):
     assert tr[0].config["real"] == {"split": "train"} and te[0].config["real"] == {"split": "test"}
     assert tr[0].key() != te[0].key()
     # Neural Marionette's Real row is unaffected (its protocol reads no row option)
-    from repro.engine.tables import build_plan
+    from repro.engine.table_plan import build_plan
     from repro.specs.load import find_spec
     from repro.specs.scales import resolve_scale
 

@@ -23,7 +23,7 @@ NORM_MARK = "SS step: embedding norm)"
 
 @pytest.fixture(scope="module", params=TABLES)
 def plan(request):
-    from repro.engine.tables import build_plan
+    from repro.engine.table_plan import build_plan
     from repro.specs.load import find_spec
     from repro.specs.scales import resolve_scale
 

@@ -271,7 +271,7 @@ def test_marionette_tables_share_one_training_per_model(scale):
     """Tables 1-5 and Figs 8/10 key a training by how its items are made, not by protocol:
     the full MarioNet is one job for all of them (NEURAL MARIONETTE rows included), at every
     profile whose protocols make items alike."""
-    from repro.engine.tables import build_plan
+    from repro.engine.table_plan import build_plan
     from repro.specs.load import find_spec
     from repro.specs.scales import resolve_scale
 
@@ -300,7 +300,7 @@ def test_test_sets_reach_the_table_json(setup, monkeypatch):
 
     from repro.engine import table_facts
     from repro.engine.table_view import make_view
-    from repro.engine.tables import build_plan
+    from repro.engine.table_plan import build_plan
     from repro.report import render
     from repro.specs.load import find_spec
     from repro.specs.scales import resolve_scale

@@ -312,7 +312,7 @@ def test_the_footer_names_the_data_set_used():
     """The quick profile's description says "bundled bandai2-mini stand-in": on another data
     set the footer said so all the same."""
     from repro.engine.runner import _footer
-    from repro.engine.tables import build_plan
+    from repro.engine.table_plan import build_plan
     from repro.specs.load import find_spec
     from repro.specs.scales import resolve_scale
 

@@ -350,7 +350,7 @@ def test_every_spec_plans_and_renders(table, monkeypatch):
 
 def test_seeds_option_parses_and_replaces_replicates(tiny_tables):
     from repro.engine.runner import plan_table
-    from repro.engine.tables import parse_seeds
+    from repro.engine.table_plan import parse_seeds
     from repro.errors import ConfigError
 
     assert parse_seeds("0-2,7") == (0, 1, 2, 7)
@@ -379,7 +379,7 @@ def test_every_table_job_computes_with_the_profiles_threads(tiny_tables):
     import dataclasses
 
     from repro.engine.job import topo_order
-    from repro.engine.tables import build_plan
+    from repro.engine.table_plan import build_plan
     from repro.specs.load import find_spec
     from repro.specs.scales import resolve_scale
 
@@ -402,7 +402,7 @@ def test_table_jobs_hash_the_method_and_protocol_they_load_by_name(tiny_tables):
     the training step, so hashed), which every Marionette protocol shares."""
     from repro.engine.job import topo_order
     from repro.engine.source_hash import source_manifest
-    from repro.engine.tables import build_plan
+    from repro.engine.table_plan import build_plan
     from repro.specs.load import find_spec
     from repro.specs.scales import resolve_scale
 
@@ -425,7 +425,7 @@ def test_retrain_gives_each_replicate_its_own_training(tiny_tables, _repro_home)
     and baselines (verify) only ever read runs made without it."""
     from repro.engine.job import topo_order
     from repro.engine.runner import latest_run, run_table
-    from repro.engine.tables import build_plan
+    from repro.engine.table_plan import build_plan
     from repro.specs.load import find_spec
     from repro.specs.scales import resolve_scale
 

@@ -251,7 +251,7 @@ def cmd_list(args) -> int:
 def cmd_plan(args) -> int:
     from repro.engine.runner import plan_table
 
-    from repro.engine.tables import parse_seeds
+    from repro.engine.table_plan import parse_seeds
 
     entries = plan_table(args.table, scale=args.scale, dataset=args.dataset, why=args.why,
                          seeds=parse_seeds(args.seeds) if args.seeds is not None else None,
@@ -274,7 +274,7 @@ def cmd_plan(args) -> int:
 @_on_device(computes=True)
 def cmd_run(args) -> int:
     from repro.engine.runner import run_tables, table_view
-    from repro.engine.tables import parse_seeds
+    from repro.engine.table_plan import parse_seeds
     from repro.report import render
 
     rc = 0
@@ -332,7 +332,7 @@ def executor_backend(args):
 
 def cmd_sweep(args) -> int:
     from repro.engine.sweep import parse_factors, render_sweep, sweep_table
-    from repro.engine.tables import parse_seeds
+    from repro.engine.table_plan import parse_seeds
 
     if args.budget is not None:
         axis, points = "budget", list(parse_factors(args.budget))

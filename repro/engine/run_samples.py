@@ -154,7 +154,7 @@ def run_samples(table: str, *, scale: str = "quick", dataset: str | None = None,
     """The samples behind a run of ``table`` (the newest finished plain run at ``scale`` by
     default; ``run``: an id, a prefix or a folder).  ConfigError when there is no run."""
     from repro.engine.runner import table_run, table_scale, table_spec
-    from repro.engine.tables import build_plan
+    from repro.engine.table_plan import build_plan
     from repro.store.runs import read_run_json
 
     spec = table_spec(table)

@@ -1,7 +1,7 @@
 """``repro run / show / plan / rescore / verify``: a table from spec to recorded run to report.
 
 A run: resolve the spec, the scale profile and the data set → build the plan
-(:func:`repro.engine.tables.build_plan`) → train or load each band's evaluator → the real-data
+(:func:`repro.engine.table_plan.build_plan`) → train or load each band's evaluator → the real-data
 gate (:mod:`repro.eval.gate`; a failing gate stops the run before any method is scored, with
 the reason) → execute the job graph (cached jobs are hits) → record every raw replicate value,
 the summary and the environment in a run folder → render the table.
@@ -93,7 +93,7 @@ def run_table(name: str, *, scale: str = "quick", dataset: str | None = None, jo
     """Run one table; returns (plan, summary, run_id).  ``seeds`` replaces the profile's
     replicate seeds (the first one is also the training seed); ``retrain`` trains one model
     per replicate; ``budget`` scales every method's epochs; ``evaluator_seed`` trains the
-    evaluators with another seed (:func:`repro.engine.tables.build_plan`); ``backend`` runs
+    evaluators with another seed (:func:`repro.engine.table_plan.build_plan`); ``backend`` runs
     the graph elsewhere (:func:`repro.engine.executor.execute`, e.g. on Ray); ``lines``,
     ``gate_margin``, ``no_gate``: :func:`run_tables`."""
     return run_tables([name], scale=scale, dataset=dataset, jobs=jobs, force=force,
@@ -127,7 +127,7 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
 
     check_kernels()  # the evaluators and the gate compute in this process (repro/kernels.py)
 
-    from repro.engine.tables import build_plan
+    from repro.engine.table_plan import build_plan
     from repro.eval.gate import resolve_gate
     from repro.store.runs import RunRecorder
 
@@ -369,7 +369,8 @@ def table_view(name: str, *, scale: str = "quick", dataset: str | None = None, r
     """The view of a table: from a run (the newest finished one by default) or, when there is
     none, the paper's values beside "not run" cells."""
     from repro.engine.table_view import make_view
-    from repro.engine.tables import build_plan, unbuilt_columns
+    from repro.engine.table_plan import build_plan
+    from repro.engine.tables import unbuilt_columns
 
     from repro.engine.footer import failure_line, gate_mark
 
@@ -445,7 +446,7 @@ def plan_table(name: str, *, scale: str = "quick", dataset: str | None = None, w
                retrain: bool = False) -> list[dict]:
     """What a run would do: each job with its key, cached or not, and (``why``) what changed."""
     from repro.engine.plan import plan as plan_jobs
-    from repro.engine.tables import build_plan
+    from repro.engine.table_plan import build_plan
 
     spec = table_spec(name)
     plan = build_plan(spec, table_scale(scale, dataset), dataset, seeds, retrain)

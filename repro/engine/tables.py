@@ -37,10 +37,7 @@ from __future__ import annotations
 
 import math
 
-# the plan lives in repro.engine.table_plan; its public names are re-exported here
-from repro.engine.table_plan import (  # noqa: F401
-    MAX_SEEDS, Band, RowPlan, TablePlan, build_plan, parse_seeds,
-)
+from repro.engine.table_plan import TablePlan
 from repro.report.view import NOT_IMPLEMENTED
 
 SUMMARY_SCHEMA = 1
