@@ -368,6 +368,87 @@ def _labels(clips: dict, annotations: dict, label_files: dict, card: DatasetCard
 
 
 
+def _read_clips(source: Path, card: DatasetCard, workers: int, progress: ProgressFn | None,
+                timings: dict):
+    """Every clip, annotation and label file of ``source`` (:func:`_read_and_convert`; a folder
+    of fewer than :data:`POOL_MIN_FILES` BVH files is parsed in-process)."""
+    if source.is_dir():
+        n_total = sum(1 for _ in source.rglob("*.bvh"))
+        w = workers if n_total >= POOL_MIN_FILES else 0
+    else:
+        n_total, w = card.clips, workers
+    clips, annotations, label_files = _read_and_convert(source, w, progress, n_total, timings)
+    if not clips:
+        raise DataError("no .bvh files found", source)
+    return clips, annotations, label_files
+
+
+def _one_skeleton(clips: dict, order: list[str]) -> dict:
+    """The first clip of ``order``, once every other clip is checked to share its hierarchy,
+    OFFSETs (to :data:`OFFSET_TOL_CM`) and Frame Time (module docstring)."""
+    first = clips[order[0]]
+    for name in order[1:]:
+        c = clips[name]
+        if c["names"] != first["names"] or c["parents"] != first["parents"]:
+            raise DataError(f"hierarchy differs from {order[0]}'s; one skeleton per data set "
+                            f"is required", c["label"])
+        d = float(np.abs(c["offsets"] - first["offsets"]).max())
+        if d > OFFSET_TOL_CM:
+            raise DataError(f"OFFSETs differ from {order[0]}'s by up to {d:.4g} cm; one "
+                            f"skeleton per data set is required", c["label"])
+        if abs(c["frame_time"] - first["frame_time"]) > 1e-9:
+            raise DataError(f"Frame Time {c['frame_time']:g} differs from {order[0]}'s "
+                            f"{first['frame_time']:g}", c["label"])
+    return first
+
+
+def _write_prepared(root: Path, fp: str, src_fp: str, source: Path, card: DatasetCard,
+                    split_cfg: dict, clips: dict, order: list[str], labels: np.ndarray,
+                    styles: np.ndarray) -> np.ndarray:
+    """Check the converted ``clips`` against ``card``, split them, write the cache ``root/fp``
+    and point ``root``'s pointer at it; the clip lengths.  Empties ``clips``."""
+    from repro.data.splits import stratified_split
+    from repro.motion.skeleton import Skeleton
+
+    first = _one_skeleton(clips, order)
+    lengths = np.array([clips[n]["root"].shape[0] for n in order], np.int64)
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
+    fps = round(1.0 / first["frame_time"], 3)
+    bad = card.disagreements(clips=len(order), frames=int(lengths.sum()), fps=fps,
+                             classes=set(labels.tolist()), styles=set(styles.tolist()),
+                             joints=len(first["names"]))
+    if bad:
+        raise DataError(f"the data disagrees with the {card.name} dataset card: "
+                        + "; ".join(bad), source)
+    split = stratified_split(labels, styles, test_fraction=split_cfg["test_fraction"],
+                             seed=split_cfg["seed"])
+    skel = Skeleton(first["names"], first["parents"], first["offsets"] * CM_TO_M)
+    arrays = {
+        "rotations": np.concatenate([clips[n]["rotations"] for n in order]),
+        "root": np.concatenate([clips[n]["root"] for n in order]),
+        "joints": np.concatenate([clips[n]["joints"] for n in order]),
+        "starts": starts, "lengths": lengths, "labels": labels, "styles": styles,
+        "split": split,
+    }
+    clips.clear()
+    from repro import __version__
+
+    meta = {  # write_cache adds the cache's schema and prepare_version
+        "name": card.name, "fingerprint": fp, "source_fingerprint": src_fp,
+        "source_kind": "folder" if source.is_dir() else "archive",
+        "fps": fps, "skeleton": skel.to_dict(), "units": "metres, Y up",
+        "rotations": "local, xyzw, relative to the BVH rest pose (bones along ±X)",
+        "label_names": list(card.class_names), "style_names": list(card.style_names),
+        "clip_names": order, "split": split_cfg, "card": card.to_dict(),
+        "stats": {"clips": len(order), "frames": int(lengths.sum())},
+        "repro_version": __version__,
+    }
+    write_cache(root, fp, arrays, meta)
+    del arrays
+    write_json_atomic(root / POINTER, {"fingerprint": fp, "source": str(source)})
+    return lengths
+
+
 def prepare_bandai2(source: str | Path, *, card: DatasetCard = BANDAI2_CARD, workers: int = 2,
                     force: bool = False, progress: ProgressFn | None = None,
                     split_seed: int | None = None, test_fraction: float | None = None
@@ -378,9 +459,6 @@ def prepare_bandai2(source: str | Path, *, card: DatasetCard = BANDAI2_CARD, wor
     folder beside the target and moved into place, so a failure leaves any existing cache intact.
     """
     from filelock import FileLock
-
-    from repro.data.splits import stratified_split
-    from repro.motion.skeleton import Skeleton
 
     t_start = time.perf_counter()
     source = Path(source).expanduser()
@@ -402,64 +480,11 @@ def prepare_bandai2(source: str | Path, *, card: DatasetCard = BANDAI2_CARD, wor
             write_json_atomic(root / POINTER, {"fingerprint": fp, "source": str(source)})
             return PrepareResult(final, fp, True, time.perf_counter() - t_start,
                                  len(meta["clip_names"]), int(meta["stats"]["frames"]), timings)
-        if source.is_dir():
-            n_total = sum(1 for _ in source.rglob("*.bvh"))
-            w = workers if n_total >= POOL_MIN_FILES else 0
-        else:
-            n_total, w = card.clips, workers
-        clips, annotations, label_files = _read_and_convert(source, w, progress, n_total, timings)
-        if not clips:
-            raise DataError("no .bvh files found", source)
+        clips, annotations, label_files = _read_clips(source, card, workers, progress, timings)
         t0 = time.perf_counter()
         order, labels, styles = _labels(clips, annotations, label_files, card)
-        first = clips[order[0]]
-        for name in order[1:]:
-            c = clips[name]
-            if c["names"] != first["names"] or c["parents"] != first["parents"]:
-                raise DataError(f"hierarchy differs from {order[0]}'s; one skeleton per data set "
-                                f"is required", c["label"])
-            d = float(np.abs(c["offsets"] - first["offsets"]).max())
-            if d > OFFSET_TOL_CM:
-                raise DataError(f"OFFSETs differ from {order[0]}'s by up to {d:.4g} cm; one "
-                                f"skeleton per data set is required", c["label"])
-            if abs(c["frame_time"] - first["frame_time"]) > 1e-9:
-                raise DataError(f"Frame Time {c['frame_time']:g} differs from {order[0]}'s "
-                                f"{first['frame_time']:g}", c["label"])
-        lengths = np.array([clips[n]["root"].shape[0] for n in order], np.int64)
-        starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
-        fps = round(1.0 / first["frame_time"], 3)
-        bad = card.disagreements(clips=len(order), frames=int(lengths.sum()), fps=fps,
-                                 classes=set(labels.tolist()), styles=set(styles.tolist()),
-                                 joints=len(first["names"]))
-        if bad:
-            raise DataError(f"the data disagrees with the {card.name} dataset card: "
-                            + "; ".join(bad), source)
-        split = stratified_split(labels, styles, test_fraction=split_cfg["test_fraction"],
-                                 seed=split_cfg["seed"])
-        skel = Skeleton(first["names"], first["parents"], first["offsets"] * CM_TO_M)
-        arrays = {
-            "rotations": np.concatenate([clips[n]["rotations"] for n in order]),
-            "root": np.concatenate([clips[n]["root"] for n in order]),
-            "joints": np.concatenate([clips[n]["joints"] for n in order]),
-            "starts": starts, "lengths": lengths, "labels": labels, "styles": styles,
-            "split": split,
-        }
-        clips.clear()
-        from repro import __version__
-
-        meta = {  # write_cache adds the cache's schema and prepare_version
-            "name": card.name, "fingerprint": fp, "source_fingerprint": src_fp,
-            "source_kind": "folder" if source.is_dir() else "archive",
-            "fps": fps, "skeleton": skel.to_dict(), "units": "metres, Y up",
-            "rotations": "local, xyzw, relative to the BVH rest pose (bones along ±X)",
-            "label_names": list(card.class_names), "style_names": list(card.style_names),
-            "clip_names": order, "split": split_cfg, "card": card.to_dict(),
-            "stats": {"clips": len(order), "frames": int(lengths.sum())},
-            "repro_version": __version__,
-        }
-        write_cache(root, fp, arrays, meta)
-        del arrays
-        write_json_atomic(root / POINTER, {"fingerprint": fp, "source": str(source)})
+        lengths = _write_prepared(root, fp, src_fp, source, card, split_cfg, clips, order,
+                                  labels, styles)
         timings["assemble_write_s"] = time.perf_counter() - t0
     return PrepareResult(final, fp, False, time.perf_counter() - t_start, len(order),
                          int(lengths.sum()), timings)

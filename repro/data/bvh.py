@@ -265,7 +265,36 @@ class _Tokens:
         return x, y, z
 
 
+def _channels(tk: _Tokens, name: str) -> tuple[str, ...]:
+    """Joint ``name``'s ``CHANNELS n c1 … cn`` declaration (``tk`` at ``CHANNELS``): the
+    canonical channel names, in declaration order (0 to 6, none repeated)."""
+    tk.i += 1
+    nt = tk.next("channel count")
+    try:
+        n = int(nt)
+    except ValueError:
+        raise tk.error(f"channel count {nt!r} of {name!r} is not an integer", tk.i - 1) from None
+    if not 0 <= n <= 6:
+        raise tk.error(f"joint {name!r} declares {n} channels (0 to 6 allowed)", tk.i - 1)
+    if tk.i + n > tk.n:
+        tk.i = tk.n
+        raise tk.error(f"unexpected end of HIERARCHY block in the channels of {name!r}")
+    raw = tk.toks[tk.i:tk.i + n]
+    try:
+        chans = tuple(_CANON[c.lower()] for c in raw)
+    except KeyError:
+        k = next(k for k, c in enumerate(raw) if c.lower() not in _CANON)
+        raise tk.error(f"unknown channel name {raw[k]!r} for joint {name!r} "
+                       f"(known: {', '.join(CHANNEL_NAMES)})", tk.i + k) from None
+    if len(set(chans)) != n:
+        raise tk.error(f"a channel is repeated for joint {name!r}", tk.i)
+    tk.i += n
+    return chans
+
+
 def _parse_hierarchy(tk: _Tokens):
+    """The HIERARCHY block (``tk`` at its first token) up to ``MOTION``: names, parents,
+    offsets, channels, End Site parents and offsets, in declaration order."""
     names: list[str] = []
     parents: list[int] = []
     offsets: list[tuple[float, float, float]] = []
@@ -291,30 +320,7 @@ def _parse_hierarchy(tk: _Tokens):
         parents.append(parent)
         tk.expect("OFFSET")
         offsets.append(tk.numbers3("OFFSET"))
-        chans: tuple[str, ...] = ()
-        if tk.peek() == "CHANNELS":
-            tk.i += 1
-            nt = tk.next("channel count")
-            try:
-                n = int(nt)
-            except ValueError:
-                raise tk.error(f"channel count {nt!r} of {name!r} is not an integer", tk.i - 1) from None
-            if not 0 <= n <= 6:
-                raise tk.error(f"joint {name!r} declares {n} channels (0 to 6 allowed)", tk.i - 1)
-            if tk.i + n > tk.n:
-                tk.i = tk.n
-                raise tk.error(f"unexpected end of HIERARCHY block in the channels of {name!r}")
-            raw = tk.toks[tk.i:tk.i + n]
-            try:
-                chans = tuple(_CANON[c.lower()] for c in raw)
-            except KeyError:
-                k = next(k for k, c in enumerate(raw) if c.lower() not in _CANON)
-                raise tk.error(f"unknown channel name {raw[k]!r} for joint {name!r} "
-                               f"(known: {', '.join(CHANNEL_NAMES)})", tk.i + k) from None
-            if len(set(chans)) != n:
-                raise tk.error(f"a channel is repeated for joint {name!r}", tk.i)
-            tk.i += n
-        channels.append(chans)
+        channels.append(_channels(tk, name) if tk.peek() == "CHANNELS" else ())
         stack.append(len(names) - 1)
 
     open_joint(-1, tk.i - 1)
@@ -388,15 +394,9 @@ def _text(b: bytes) -> str:
         return b.decode("latin-1")
 
 
-def parse_bvh(data: bytes | str, source: str | Path = "<bvh>", *, check=None) -> Bvh:
-    """Parse BVH text (bytes or str); ``source`` names the file in error messages.
-
-    Only the small HIERARCHY block is decoded to text; the MOTION rows go to numpy as bytes.
-    ``check(n_frames, frame_time, n_joints)``, when given, is called once the MOTION header is
-    read and before the frames are parsed or anything their size is allocated: a caller's caps
-    (frames after resampling, memory) raise there (issue 29).
-    """
-    source = str(source)
+def _bytes_of(data: bytes | str, source: str) -> bytes:
+    """The file's bytes: str encoded as UTF-8, a UTF-8 byte-order mark dropped, CR LF and
+    CR-only line ends turned into LF."""
     if isinstance(data, str):
         try:
             raw = data.encode("utf-8")
@@ -409,7 +409,12 @@ def parse_bvh(data: bytes | str, source: str | Path = "<bvh>", *, check=None) ->
         raw = raw[3:]
     if b"\r" in raw:  # CR LF (Windows) and CR-only (classic Mac) line ends read as LF
         raw = raw.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
-    m = _MOTION_RE.search(raw)
+    return raw
+
+
+def _hierarchy_entry(raw: bytes, m, source: str) -> tuple:
+    """The HIERARCHY block before the ``MOTION`` line ``m`` (``None``: there is none), from
+    :data:`_HIERARCHIES` or parsed and remembered: :func:`_remember_hierarchy`'s entry."""
     key = None if m is None else raw[: m.start()]
     known = None if key is None else _HIERARCHIES.get(key)
     if known is None:
@@ -426,31 +431,33 @@ def parse_bvh(data: bytes | str, source: str | Path = "<bvh>", *, check=None) ->
                             motion_line)
         known = _remember_hierarchy(key, motion_line, names, parents, offsets, channels,
                                     end_parents, end_offsets)
-    motion_line, names, parents, offsets, channels, end_parents, end_offsets = known
-    n_ch = sum(len(c) for c in channels)
+    return known
 
-    # ---- MOTION header: "Frames: N" then "Frame Time: t" (each on its own line)
-    pos = m.end()
-    if raw[pos:pos + 1] == b"\n":
-        pos += 1
-    line = motion_line + 1
 
-    def header_line(prefix: str) -> tuple[str, int]:
-        nonlocal pos, line
-        while True:
-            if pos >= len(raw):
-                raise DataError(f"truncated MOTION block: missing '{prefix}' line", source, line)
-            nl = raw.find(b"\n", pos)
-            nl = len(raw) if nl < 0 else nl
-            ln = _text(raw[pos:nl]).strip()
-            here = line
-            pos, line = nl + 1, line + 1
-            if ln:
-                if not ln.startswith(prefix):
-                    raise DataError(f"expected '{prefix}', found {ln[:40]!r}", source, here)
-                return ln[len(prefix):].strip(), here
+def _header_line(raw: bytes, pos: int, line: int, prefix: str,
+                 source: str) -> tuple[str, int, int, int]:
+    """The next non-blank line from byte ``pos`` (line ``line``), which must start with
+    ``prefix``: (the rest of it stripped, its line, the byte and line after it)."""
+    while True:
+        if pos >= len(raw):
+            raise DataError(f"truncated MOTION block: missing '{prefix}' line", source, line)
+        nl = raw.find(b"\n", pos)
+        nl = len(raw) if nl < 0 else nl
+        ln = _text(raw[pos:nl]).strip()
+        here = line
+        pos, line = nl + 1, line + 1
+        if ln:
+            if not ln.startswith(prefix):
+                raise DataError(f"expected '{prefix}', found {ln[:40]!r}", source, here)
+            return ln[len(prefix):].strip(), here, pos, line
 
-    ftxt, frames_line = header_line("Frames:")
+
+def _motion_header(raw: bytes, pos: int, line: int,
+                   source: str) -> tuple[int, int, float, int, int]:
+    """The MOTION header from byte ``pos`` (line ``line``): "Frames: N" then "Frame Time: t",
+    each on its own line and within :data:`MAX_FRAMES` / :data:`MIN_FRAME_TIME`: (N, the
+    Frames line, t, the byte and line after the header)."""
+    ftxt, frames_line, pos, line = _header_line(raw, pos, line, "Frames:", source)
     try:
         n_frames = int(ftxt)
     except ValueError:
@@ -460,7 +467,7 @@ def parse_bvh(data: bytes | str, source: str | Path = "<bvh>", *, check=None) ->
     if n_frames > MAX_FRAMES:
         raise DataError(f"Frames: {ftxt[:40]} is over the {MAX_FRAMES:,} frames a clip may have "
                         "(bvh.MAX_FRAMES)", source, frames_line)
-    ttxt, time_line = header_line("Frame Time:")
+    ttxt, time_line, pos, line = _header_line(raw, pos, line, "Frame Time:", source)
     try:
         frame_time = float(ttxt)
     except ValueError:
@@ -468,6 +475,30 @@ def parse_bvh(data: bytes | str, source: str | Path = "<bvh>", *, check=None) ->
     if not (math.isfinite(frame_time) and frame_time >= MIN_FRAME_TIME):
         raise DataError(f"Frame Time: {ttxt[:40]!r} must be a positive number of seconds (at "
                         f"least {MIN_FRAME_TIME:g}, bvh.MIN_FRAME_TIME)", source, time_line)
+    return n_frames, frames_line, frame_time, pos, line
+
+
+def parse_bvh(data: bytes | str, source: str | Path = "<bvh>", *, check=None) -> Bvh:
+    """Parse BVH text (bytes or str); ``source`` names the file in error messages.
+
+    Only the small HIERARCHY block is decoded to text; the MOTION rows go to numpy as bytes.
+    ``check(n_frames, frame_time, n_joints)``, when given, is called once the MOTION header is
+    read and before the frames are parsed or anything their size is allocated: a caller's caps
+    (frames after resampling, memory) raise there (issue 29).
+    """
+    source = str(source)
+    raw = _bytes_of(data, source)
+    m = _MOTION_RE.search(raw)
+    known = _hierarchy_entry(raw, m, source)
+    motion_line, names, parents, offsets, channels, end_parents, end_offsets = known
+    n_ch = sum(len(c) for c in channels)
+
+    # ---- MOTION header: "Frames: N" then "Frame Time: t" (each on its own line)
+    pos = m.end()
+    if raw[pos:pos + 1] == b"\n":
+        pos += 1
+    n_frames, frames_line, frame_time, pos, line = _motion_header(raw, pos, motion_line + 1,
+                                                                  source)
     if check is not None:
         check(n_frames, frame_time, len(names))
     body = memoryview(raw)[pos:]

@@ -333,13 +333,133 @@ def _draw(rng: np.random.Generator, weights: np.ndarray) -> int:
     return int(rng.choice(weights.shape[0], p=weights / weights.sum()))
 
 
+class _Walker:
+    """One split's walk (:func:`walk_split`): its clips by tag, the transition quotas left, the
+    clips not yet used as an action and the split's seeded draws, in the order the walk makes
+    them."""
+
+    def __init__(self, clips: ClipSet, ft: Features, P: np.ndarray, cfg, split: int,
+                 version: int, members: np.ndarray):
+        self.clips, self.ft, self.P, self.cfg, self.split = clips, ft, P, cfg, split
+        self.C = clips.n_classes
+        self.L = np.asarray(clips.lengths, np.int64)
+        self.labels = np.asarray(clips.labels, np.int64)
+        self.rng = numpy_rng(cfg.seed, "compose", version, "walk", split)
+        self.by_tag = [members[self.labels[members] == c] for c in range(self.C)]
+        n = np.array([x.size for x in self.by_tag], np.int64)
+        self.Q = quotas(P, n, at_least_one=(split == TRAIN))
+        self.unused = [set(x.tolist()) for x in self.by_tag]
+        self.n_left = int(members.size)
+
+    def others(self, t: int, clip: int) -> np.ndarray:
+        """The split's clips of tag ``t`` other than ``clip``."""
+        return self.by_tag[t][self.by_tag[t] != clip]
+
+    def sample(self, pool: np.ndarray) -> np.ndarray:
+        """``candidates_per_step`` clips of ``pool`` drawn without replacement (all when fewer)."""
+        K = self.cfg.candidates_per_step
+        return self.rng.choice(pool, K, replace=False) if pool.size > K else pool
+
+    def cheapest(self, cand: np.ndarray, join) -> tuple[float, int, int, int]:
+        """``(cost, c, i, j)`` of the cheapest ``join(c) = (cost, i, j)`` among ``cand`` (ties
+        to the first candidate); ``(inf, -1, -1, -1)`` when none joins."""
+        best = (math.inf, -1, -1, -1)
+        for c in cand.tolist():
+            cost, i, j = join(c)
+            if cost < best[0]:
+                best = (cost, c, i, j)
+        return best
+
+    def join_into(self, cand: np.ndarray, b: int):
+        """Cheapest lead-in among ``cand`` into action ``b``."""
+        L, cfg = self.L, self.cfg
+        en = entry_range(int(L[b]), cfg, ROLE_ACTION)
+
+        def join(c: int):
+            ex = exit_range(int(L[c]), cfg, ROLE_LEAD_IN, -1)
+            return best_join(self.ft, c, ex[0], ex[1], b, en[0], en[1], cfg.blend_frames,
+                             cfg.velocity_weight)
+        return self.cheapest(cand, join)
+
+    def join_from(self, a: int, entry: int, cand: np.ndarray, role: int):
+        """Cheapest continuation from action ``a`` (entered at ``entry``) among ``cand``."""
+        L, cfg = self.L, self.cfg
+        ex = exit_range(int(L[a]), cfg, ROLE_ACTION, entry)
+
+        def join(c: int):
+            en = entry_range(int(L[c]), cfg, role)
+            return best_join(self.ft, a, ex[0], ex[1], c, en[0], en[1], cfg.blend_frames,
+                             cfg.velocity_weight)
+        return self.cheapest(cand, join)
+
+    def next_tag(self, cur: int) -> int:
+        """Next tag ∝ the remaining quota of ``cur``'s row (else ``P``) among tags with a clip
+        other than ``cur``.  Every departure consumes one quota element, so a split's quotas
+        are realised exactly (a tag whose clips are all used ends the sequence with a
+        lead-out of that tag instead of an action)."""
+        a = self.labels[cur]
+        avail = np.array([self.others(t, cur).size > 0 for t in range(self.C)])
+        for w in (self.Q[a] * avail, self.P[a] * avail):
+            if w.sum() > 0:
+                return _draw(self.rng, w.astype(np.float64))
+        raise DataError(f"{self.clips.name}: no clip to follow clip {cur} in the "
+                        f"{('train', 'test')[self.split]} split")
+
+    def start(self, wk: Walk) -> int:
+        """Open ``wk`` with an unused clip drawn as its first action and a lead-in of a tag
+        drawn ∝ ``P``'s column of that action's tag; the first action."""
+        labels, rng = self.labels, self.rng
+        pool = np.array(sorted(set().union(*self.unused)), dtype=np.int64)
+        first = int(rng.choice(pool))
+        self.unused[labels[first]].discard(first)
+        self.n_left -= 1
+        avail = np.array([self.others(t, first).size > 0 for t in range(self.C)])
+        col = self.P[:, labels[first]] * avail
+        t = _draw(rng, col if col.sum() > 0 else avail.astype(np.float64))
+        cost, c, i, j = self.join_into(self.sample(self.others(t, first)), first)
+        wk.clips += [c, first]
+        wk.roles += [ROLE_LEAD_IN, ROLE_ACTION]
+        wk.entry += [-1, j]
+        wk.exit += [i]
+        return first
+
+    def walk(self) -> Walk:
+        """The next sequence: a lead-in, ``min_actions … max_actions`` actions (fewer when the
+        next tag has no unused clip left) and a lead-out."""
+        wk = Walk()
+        n_target = int(self.rng.integers(self.cfg.min_actions, self.cfg.max_actions + 1))
+        cur, n_act = self.start(wk), 1
+        while True:
+            t = self.next_tag(cur)
+            if self.Q[self.labels[cur], t] > 0:
+                self.Q[self.labels[cur], t] -= 1
+            end = n_act >= n_target or not self.unused[t]
+            if end:
+                cost, c, i, j = self.join_from(cur, wk.entry[-1], self.sample(self.others(t, cur)),
+                                               ROLE_LEAD_OUT)
+                wk.exit.append(i)
+                wk.clips.append(c)
+                wk.roles.append(ROLE_LEAD_OUT)
+                wk.entry.append(j)
+                wk.exit.append(-1)
+                return wk
+            cost, c, i, j = self.join_from(
+                cur, wk.entry[-1], self.sample(np.array(sorted(self.unused[t]), np.int64)),
+                ROLE_ACTION)
+            self.unused[t].discard(c)
+            self.n_left -= 1
+            wk.exit.append(i)
+            wk.clips.append(c)
+            wk.roles.append(ROLE_ACTION)
+            wk.entry.append(j)
+            cur, n_act = c, n_act + 1
+
+
 def walk_split(clips: ClipSet, ft: Features, P: np.ndarray, cfg, split: int,
                version: int) -> list[Walk]:
     """The sequences of one split (module docstring): every usable clip of the split is the
     action of exactly one sequence; lead-ins and lead-outs reuse other clips of the split."""
-    C = clips.n_classes
     L = np.asarray(clips.lengths, np.int64)
-    labels = np.asarray(clips.labels, np.int64)
     ok = np.array([usable(int(x), cfg) for x in L])
     members = np.flatnonzero((np.asarray(clips.split) == split) & ok)
     if members.size == 0:
@@ -348,96 +468,10 @@ def walk_split(clips: ClipSet, ft: Features, P: np.ndarray, cfg, split: int,
         raise DataError(f"{clips.name}: the {('train', 'test')[split]} split has one usable "
                         "clip; composing sequences needs at least two (lead-ins/lead-outs "
                         "reuse another clip of the split)")
-    rng = numpy_rng(cfg.seed, "compose", version, "walk", split)
-    by_tag = [members[labels[members] == c] for c in range(C)]
-    n = np.array([x.size for x in by_tag], np.int64)
-    Q = quotas(P, n, at_least_one=(split == TRAIN))
-    unused = [set(x.tolist()) for x in by_tag]
-    n_left = int(members.size)
-    k, vw, K = cfg.blend_frames, cfg.velocity_weight, cfg.candidates_per_step
-
-    def others(t: int, clip: int) -> np.ndarray:
-        return by_tag[t][by_tag[t] != clip]
-
-    def sample(pool: np.ndarray) -> np.ndarray:
-        return rng.choice(pool, K, replace=False) if pool.size > K else pool
-
-    def join_into(cand: np.ndarray, b: int):
-        """Cheapest lead-in among ``cand`` into action ``b``."""
-        best = (math.inf, -1, -1, -1)
-        en = entry_range(int(L[b]), cfg, ROLE_ACTION)
-        for c in cand.tolist():
-            ex = exit_range(int(L[c]), cfg, ROLE_LEAD_IN, -1)
-            cost, i, j = best_join(ft, c, ex[0], ex[1], b, en[0], en[1], k, vw)
-            if cost < best[0]:
-                best = (cost, c, i, j)
-        return best
-
-    def join_from(a: int, entry: int, cand: np.ndarray, role: int):
-        """Cheapest continuation from action ``a`` (entered at ``entry``) among ``cand``."""
-        best = (math.inf, -1, -1, -1)
-        ex = exit_range(int(L[a]), cfg, ROLE_ACTION, entry)
-        for c in cand.tolist():
-            en = entry_range(int(L[c]), cfg, role)
-            cost, i, j = best_join(ft, a, ex[0], ex[1], c, en[0], en[1], k, vw)
-            if cost < best[0]:
-                best = (cost, c, i, j)
-        return best
-
-    def next_tag(cur: int) -> int:
-        """Next tag ∝ the remaining quota of ``cur``'s row (else ``P``) among tags with a clip
-        other than ``cur``.  Every departure consumes one quota element, so a split's quotas
-        are realised exactly (a tag whose clips are all used ends the sequence with a
-        lead-out of that tag instead of an action)."""
-        a = labels[cur]
-        avail = np.array([others(t, cur).size > 0 for t in range(C)])
-        for w in (Q[a] * avail, P[a] * avail):
-            if w.sum() > 0:
-                return _draw(rng, w.astype(np.float64))
-        raise DataError(f"{clips.name}: no clip to follow clip {cur} in the "
-                        f"{('train', 'test')[split]} split")
-
+    walker = _Walker(clips, ft, P, cfg, split, version, members)
     walks: list[Walk] = []
-    while n_left:
-        wk = Walk()
-        n_target = int(rng.integers(cfg.min_actions, cfg.max_actions + 1))
-        pool = np.array(sorted(set().union(*unused)), dtype=np.int64)
-        first = int(rng.choice(pool))
-        unused[labels[first]].discard(first)
-        n_left -= 1
-        avail = np.array([others(t, first).size > 0 for t in range(C)])
-        col = P[:, labels[first]] * avail
-        t = _draw(rng, col if col.sum() > 0 else avail.astype(np.float64))
-        cost, c, i, j = join_into(sample(others(t, first)), first)
-        wk.clips += [c, first]
-        wk.roles += [ROLE_LEAD_IN, ROLE_ACTION]
-        wk.entry += [-1, j]
-        wk.exit += [i]
-        cur, n_act = first, 1
-        while True:
-            t = next_tag(cur)
-            if Q[labels[cur], t] > 0:
-                Q[labels[cur], t] -= 1
-            end = n_act >= n_target or not unused[t]
-            if end:
-                cost, c, i, j = join_from(cur, wk.entry[-1], sample(others(t, cur)),
-                                          ROLE_LEAD_OUT)
-                wk.exit.append(i)
-                wk.clips.append(c)
-                wk.roles.append(ROLE_LEAD_OUT)
-                wk.entry.append(j)
-                wk.exit.append(-1)
-                break
-            cost, c, i, j = join_from(cur, wk.entry[-1],
-                                      sample(np.array(sorted(unused[t]), np.int64)), ROLE_ACTION)
-            unused[t].discard(c)
-            n_left -= 1
-            wk.exit.append(i)
-            wk.clips.append(c)
-            wk.roles.append(ROLE_ACTION)
-            wk.entry.append(j)
-            cur, n_act = c, n_act + 1
-        walks.append(wk)
+    while walker.n_left:
+        walks.append(walker.walk())
     return walks
 
 
