@@ -383,7 +383,7 @@ def _read_clips(source: Path, card: DatasetCard, workers: int, progress: Progres
     return clips, annotations, label_files
 
 
-def _one_skeleton(clips: dict, order: list[str]) -> dict:
+def _checked_bvh_skeleton(clips: dict, order: list[str]) -> dict:
     """The first clip of ``order``, once every other clip is checked to share its hierarchy,
     OFFSETs (to :data:`OFFSET_TOL_CM`) and Frame Time (module docstring)."""
     first = clips[order[0]]
@@ -410,7 +410,7 @@ def _write_prepared(root: Path, fp: str, src_fp: str, source: Path, card: Datase
     from repro.data.splits import stratified_split
     from repro.motion.skeleton import Skeleton
 
-    first = _one_skeleton(clips, order)
+    first = _checked_bvh_skeleton(clips, order)
     lengths = np.array([clips[n]["root"].shape[0] for n in order], np.int64)
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
     fps = round(1.0 / first["frame_time"], 3)

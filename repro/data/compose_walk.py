@@ -435,8 +435,8 @@ class _Walker:
                 self.Q[self.labels[cur], t] -= 1
             end = n_act >= n_target or not self.unused[t]
             if end:
-                cost, c, i, j = self.join_from(cur, wk.entry[-1], self.sample(self.others(t, cur)),
-                                               ROLE_LEAD_OUT)
+                cost, c, i, j = self.join_from(cur, wk.entry[-1],
+                                               self.sample(self.others(t, cur)), ROLE_LEAD_OUT)
                 wk.exit.append(i)
                 wk.clips.append(c)
                 wk.roles.append(ROLE_LEAD_OUT)

@@ -15,9 +15,9 @@ def evaluators(plan, *, train: bool, progress: bool, weights: bool = True, rec=N
                trained: frozenset = frozenset(), log=None) -> dict[str, str]:
     """Describe (and, with ``train``, train or load) every band's evaluator; without
     ``weights`` a stored evaluator is described from its record (no weights read: nothing
-    will be scored, :func:`repro.engine.runner._measurements_stored`), one not stored yet is
-    still trained.  With a run record ``rec`` each evaluator's store key is recorded as read, or written when
-    this run trained it (here, or side by side: ``trained``); ``log(line)`` hears when each
+    will be scored, as the runner decides from the stored measurements), one not stored yet
+    is still trained.  With a run record ``rec`` each evaluator's store key is recorded as
+    read, or written when this run trained it (here, or side by side: ``trained``); ``log(line)`` hears when each
     one is ready (progress lines, :mod:`repro.engine.progress`)."""
     from repro.engine.steps import evaluator_for
 
