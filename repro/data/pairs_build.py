@@ -62,7 +62,6 @@ import math
 from typing import ClassVar, Literal
 
 import numpy as np
-import torch
 from pydantic import Field, field_validator, model_validator
 
 from repro.data.clipset import TEST, TRAIN
@@ -307,6 +306,8 @@ class PairSource(ItemSource):
                 "dropped": dropped, "sequences": seqs.fingerprint}
 
     def _items(self, clipset, tab: dict, rows: np.ndarray, what: str) -> PairItems:
+        import torch
+
         from repro.motion.motion import Motion
 
         seqs = self.sequences(clipset)
@@ -357,6 +358,8 @@ def _resampled(seqs, fps: float) -> dict:
     """Every sequence of ``seqs`` resampled once to ``fps`` (module docstring, step 2):
     ``root`` (F, 3) and ``rot6d`` (F, J, 6) float32 tensors packed by sequence, ``starts`` and
     ``lengths`` (S,) int64.  In-process cached by the sequences' fingerprint."""
+    import torch
+
     from repro.motion.motion import Motion
     from repro.motion.resample import resample_fps
     from repro.motion.rotations import quat_to_6d
@@ -392,6 +395,8 @@ def resample_clipset(clips, fps: float):
     """``clips`` with every clip resampled to ``fps`` (slerp rotations, linear root,
     :func:`repro.motion.resample.resample_clip`; joints by forward kinematics), split, labels
     and styles kept; the same object when it already runs at ``fps``."""
+    import torch
+
     from repro.data.clipset import ClipSet
     from repro.motion.resample import resample_clip
     from repro.motion.rotations import quat_to_matrix
@@ -429,9 +434,13 @@ class _one_thread:
     """Run torch on one thread (batched kernels round differently with the thread count)."""
 
     def __enter__(self):
+        import torch
+
         self.before = torch.get_num_threads()
         torch.set_num_threads(1)
 
     def __exit__(self, *exc):
+        import torch
+
         torch.set_num_threads(self.before)
 
