@@ -94,11 +94,12 @@ def is_composite(generator) -> bool:
 
 
 def method_is_composite(method_id: str) -> bool:
-    """Whether ``method_id`` is a composite (ACTOR + X) method: its class has ``components``."""
+    """Whether ``method_id`` is a composite (ACTOR + X) method: its card has ``components``
+    (read without the method's network, so a plan imports no torch)."""
     try:
-        from repro.models.base import generator_class
+        from repro.models.base import method_card
 
-        return bool(getattr(generator_class(method_id), "components", None))
+        return bool(method_card(method_id).components)
     except Exception:  # noqa: BLE001 - not registered yet: fall back to the known ids
         return method_id in COMPOSITES
 
