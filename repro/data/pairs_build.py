@@ -65,7 +65,7 @@ import numpy as np
 from pydantic import Field, field_validator, model_validator
 
 from repro.data.clipset import TEST, TRAIN
-from repro.data.item_sources import ItemSource, cached
+from repro.data.item_sources import ItemSource, SplitView, cached
 from repro.data.pairs import PAIRS_VERSION, PairItems
 from repro.errors import DataError
 from repro.keys import content_key
@@ -144,6 +144,14 @@ class PairSource(ItemSource):
         return cached(content_key({"what": "clipset", "data": clipset.fingerprint,
                                    "fps": self.fps}),
                       lambda: resample_clipset(clipset, self.fps))
+
+    def split_view(self, clipset):
+        """What a plan reads of :meth:`split_clipset` without resampling (torch, seconds):
+        resampling keeps every clip's label and split."""
+        fp = resampled_fingerprint(clipset, self.fps)
+        if fp is None:
+            return clipset
+        return SplitView(fp, clipset.labels, clipset.split, tuple(clipset.label_names))
 
     def sequences(self, clipset):
         """The composed sequences of ``clipset`` at its native fps (in-process cached).  A
@@ -391,6 +399,14 @@ def resampled_sequences(seqs, fps: float) -> dict:
     return _resampled(seqs, fps)
 
 
+def resampled_fingerprint(clips, fps: float) -> str | None:
+    """The fingerprint of :func:`resample_clipset` ``(clips, fps)``, computed without
+    resampling; None when ``clips`` already runs at ``fps`` (the same object comes back)."""
+    if abs(float(clips.fps) - float(fps)) < 1e-9:
+        return None
+    return content_key({"base": clips.fingerprint, "resample": "slerp", "fps": float(fps)})
+
+
 def resample_clipset(clips, fps: float):
     """``clips`` with every clip resampled to ``fps`` (slerp rotations, linear root,
     :func:`repro.motion.resample.resample_clip`; joints by forward kinematics), split, labels
@@ -402,7 +418,8 @@ def resample_clipset(clips, fps: float):
     from repro.motion.rotations import quat_to_matrix
     from repro.motion.skeleton import forward_kinematics
 
-    if abs(float(clips.fps) - float(fps)) < 1e-9:
+    fp = resampled_fingerprint(clips, fps)
+    if fp is None:
         return clips
     quats, roots = [], []
     with _one_thread():
@@ -421,7 +438,6 @@ def resample_clipset(clips, fps: float):
                 torch.from_numpy(r[s0:s0 + step])).numpy()
     lengths = np.array([x.shape[0] for x in quats], np.int64)
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
-    fp = content_key({"base": clips.fingerprint, "resample": "slerp", "fps": float(fps)})
     return ClipSet(name=f"{clips.name}@{float(fps):g}fps", skeleton=clips.skeleton,
                    fps=float(fps), rotations=q.astype(np.float32), root=r.astype(np.float32),
                    joints=joints, starts=starts, lengths=lengths, labels=clips.labels,

@@ -178,13 +178,13 @@ def _resolve_bands(bands: list[Band], dataset: str, fp: str | None, scale,
         proto = protos[bi] = get_protocol(b.protocol, b.params)
         over, heading = _describe_band(b, proto, dataset, scale, evaluator_seed)
         if fp is not None:
-            from repro.engine.steps import clipset, evaluator_clipset
+            from repro.engine.steps import clipset, evaluator_split
 
             clips = clips or clipset(dataset)
             ev_over = {**over, **({} if heading is None else {"heading": heading})}
             ev_settings = resolve_settings(scale.name, ev_over) if ev_over else settings
             b.evaluator_key = evaluator_key(proto.evaluator_kind, ev_settings,
-                                            evaluator_clipset(proto, clips).fingerprint,
+                                            evaluator_split(proto, clips).fingerprint,
                                             int(evaluator_seed))
     return protos
 

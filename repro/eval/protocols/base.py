@@ -172,6 +172,11 @@ class ItemProtocol(Protocol):
         so that no scored test clip was seen by the recogniser."""
         return self.item_source().split_clipset(clipset)
 
+    def split_view(self, clipset):
+        """What a plan reads of :meth:`split_clipset` (fingerprint, labels, split), without
+        building its clips where that costs work (the item source's ``split_view``)."""
+        return self.item_source().split_view(clipset)
+
     def train_items(self, clipset):
         """The items a generator is trained on (the item source's training split)."""
         return self.item_source().train_items(clipset)
