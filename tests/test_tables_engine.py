@@ -171,6 +171,20 @@ def test_a_cached_rerun_reads_no_evaluator_weights(tiny_tables, _repro_home, mon
                        weights=False).features(np.zeros((1, 30, 19, 3)))
 
 
+def _heavy_imports(args: list[str], env: dict[str, str]) -> str:
+    """The last line of ``repro ARGS`` run in a fresh process with ``env`` added: ``HEAVY [...]``,
+    which of torch and roma the process imported (it must exit 0)."""
+    import os
+
+    code = (f"import sys; from cli.main import main; rc = main({args!r}); "
+            "heavy = sorted(m for m in ('torch', 'roma') if m in sys.modules); "
+            "print('HEAVY', heavy); sys.exit(rc)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=False, cwd=repo_root(), env={**os.environ, **env})
+    assert out.returncode == 0, out.stderr
+    return out.stdout.strip().splitlines()[-1]
+
+
 def test_show_and_list_of_a_run_table_import_no_torch(tiny_tables, _repro_home):
     """``repro show`` and ``repro list`` read run records only: no torch, no roma in the
     process (fixed costs, issue 17)."""
@@ -178,16 +192,20 @@ def test_show_and_list_of_a_run_table_import_no_torch(tiny_tables, _repro_home):
 
     run_table("marionette/table1", scale="quick", progress=False)
     for args in (["show", "marionette/table1"], ["list"]):
-        code = (f"import sys; from cli.main import main; rc = main({args!r}); "
-                "heavy = sorted(m for m in ('torch', 'roma') if m in sys.modules); "
-                "print('HEAVY', heavy); sys.exit(rc)")
-        import os
+        assert _heavy_imports(args, {"REPRO_HOME": str(_repro_home),
+                                     "REPRO_TABLES": str(tiny_tables)}) == "HEAVY []", args
 
-        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                             check=False, cwd=repo_root(), env={**os.environ, "REPRO_HOME": str(_repro_home),
-                                                   "REPRO_TABLES": str(tiny_tables)})
-        assert out.returncode == 0, out.stderr
-        assert "HEAVY []" in out.stdout, (args, out.stdout[-300:])
+
+@pytest.mark.parametrize("table", ["marionette/table1", "multiact/table1", "odmo/table1"])
+def test_plan_on_the_bundled_data_imports_no_torch(table, _repro_home):
+    """``repro plan`` computes nothing: every row's config comes from its method's torch-free
+    card, every band's protocol module imports torch only to compute, and MultiAct's evaluator
+    split is keyed without resampling its clips: no torch, no roma in the process (issue 31)."""
+    from repro.data.bundle import MINI_NAME
+    from repro.data.registry import load_clipset
+
+    load_clipset(MINI_NAME)  # the bundle's first decoding (torch) is computing: done once before
+    assert _heavy_imports(["plan", table], {"REPRO_HOME": str(_repro_home)}) == "HEAVY []"
 
 
 def test_a_failing_method_fails_its_row_and_the_others_go_on(tiny_tables, _repro_home,
