@@ -214,6 +214,27 @@ def test_source_hash_follows_repro_imports_and_changes_with_the_code(jobs_module
         dict(source_manifest(MOD))["repro.keys"]
 
 
+def test_parsed_imports_are_kept_between_processes_by_file_digest(jobs_module, _repro_home,
+                                                                    monkeypatch):
+    """What each file imports is stored under REPRO_HOME keyed by its bytes' digest (issue 31):
+    a later process hashes without parsing an unchanged file, and an edited one is parsed."""
+    import ast
+
+    from repro.engine.source_hash import IMPORTS_CACHE
+
+    first = source_manifest(MOD)
+    assert (_repro_home / IMPORTS_CACHE).is_file()
+    clear_source_cache()  # as a new process: only the file is left
+    parsed = []
+    real_parse = ast.parse
+    monkeypatch.setattr(ast, "parse", lambda src, *a, **k: parsed.append(k.get("filename"))
+                        or real_parse(src, *a, **k))
+    assert source_manifest(MOD) == first and parsed == []
+    jobs_module.path.write_text(JOBS_SOURCE.replace("0.5 * w", "0.25 * w"))
+    clear_source_cache()
+    assert source_manifest(MOD) != first and parsed == [str(jobs_module.path)]
+
+
 def test_a_plugin_loaded_by_name_is_part_of_the_key(jobs_module, tmp_path):
     """A module the job loads through a registry (no import statement leads to it) is hashed
     when the job names it in ``plugins``: editing it changes the key."""
