@@ -18,7 +18,8 @@ run record.
 Results are cached per process (:func:`clear_source_cache` empties the cache): a process runs
 the code it imported, so its keys describe that code.  What each file imports is also kept
 between processes, keyed by the module name and the sha256 of the file's bytes (so an entry
-never goes stale), in ``<REPRO_HOME>/cache/source-imports.json`` (:data:`IMPORTS_CACHE`):
+never goes stale; the file also names its schema and the reader that wrote it, and anything
+else is a miss), in ``<REPRO_HOME>/cache/source-imports.json`` (:data:`IMPORTS_CACHE`):
 parsing the ~400 files a table's keys cover was most of a fully cached ``repro plan`` (issue
 31); every file is still read and hashed.
 """
@@ -42,6 +43,8 @@ ROOT_PACKAGE = "repro"
 IMPORTS_CACHE = Path("cache") / "source-imports.json"
 #: at most this many entries: past it, a write keeps only the entries this process used
 IMPORTS_CACHE_MAX = 4000
+#: the cache file's layout: ``{"schema": 1, "reader": <sha256 of this module>, "entries": {…}}``
+IMPORTS_CACHE_SCHEMA = 1
 
 _parsed: dict[str, list[str]] | None = None  # IMPORTS_CACHE's entries, read on first use
 _parsed_used: set[str] = set()
@@ -125,7 +128,9 @@ def _module_entry(name: str) -> tuple[str, tuple[str, ...]] | None:
     is_pkg = spec.submodule_search_locations is not None
     key = f"{name}:{int(is_pkg)}:{digest}"
     known = _parsed_entries()
-    if key not in known:
+    entry = known.get(key)
+    if not (isinstance(entry, list) and all(isinstance(i, str) for i in entry)):
+        # not known yet, or a damaged entry (a miss: parsed again and written back right)
         try:
             tree = ast.parse(path.read_bytes(), filename=str(path))
         except SyntaxError:
@@ -136,8 +141,16 @@ def _module_entry(name: str) -> tuple[str, tuple[str, ...]] | None:
     return digest, tuple(known[key])
 
 
+@lru_cache(maxsize=1)
+def _reader_id() -> str:
+    """The sha256 of this module's bytes: entries written by another version of the import
+    reader (:func:`_imported_names`) are not used."""
+    return sha256_file(Path(__file__))
+
+
 def _parsed_entries() -> dict[str, list[str]]:
-    """:data:`IMPORTS_CACHE`'s entries (empty when it is missing or unreadable)."""
+    """:data:`IMPORTS_CACHE`'s entries: empty when the file is missing, unreadable, of another
+    schema or written by another version of this reader (each a miss, never an error)."""
     global _parsed
     if _parsed is None:
         from repro.paths import repro_home
@@ -146,7 +159,9 @@ def _parsed_entries() -> dict[str, list[str]]:
             data = json.loads((repro_home() / IMPORTS_CACHE).read_text())
         except (OSError, ValueError):
             data = None
-        _parsed = data if isinstance(data, dict) else {}
+        ok = (isinstance(data, dict) and data.get("schema") == IMPORTS_CACHE_SCHEMA
+              and data.get("reader") == _reader_id() and isinstance(data.get("entries"), dict))
+        _parsed = dict(data["entries"]) if ok else {}
     return _parsed
 
 
@@ -164,7 +179,8 @@ def _save_parsed() -> None:
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_text(json.dumps(keep, sort_keys=True))
+        tmp.write_text(json.dumps({"schema": IMPORTS_CACHE_SCHEMA, "reader": _reader_id(),
+                                   "entries": keep}, sort_keys=True))
         os.replace(tmp, path)
     except OSError:
         tmp.unlink(missing_ok=True)
