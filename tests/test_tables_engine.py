@@ -467,3 +467,56 @@ def test_retrain_gives_each_replicate_its_own_training(tiny_tables, _repro_home)
     assert not any("independent trainings" in line for line in plain["footer"])
     assert latest_run("marionette/table1", "quick").name == run2
     assert latest_run("marionette/table1", "quick", retrain=False).name == run1
+
+
+@pytest.mark.parametrize("table", ["multiact/table1", "multiact/table3", "odmo/table1",
+                                   "marionette/table1"])
+def test_the_plans_split_view_is_the_evaluators_clipset(table, _repro_home, monkeypatch):
+    """What a plan keys and split-checks the evaluator from (``evaluator_split``, no clips
+    built) equals the clip set the evaluator trains on (``evaluator_clipset``): fingerprint,
+    labels, split, label names, classes (issue 31), for every band of a spec per paper kind."""
+    from repro.engine.steps import clipset, evaluator_clipset, evaluator_split
+    from repro.engine.table_plan import build_plan
+    from repro.eval.protocols import get_protocol
+    from repro.specs.load import find_spec
+    from repro.specs.scales import resolve_scale
+
+    monkeypatch.setenv("REPRO_TABLES", str(repo_root() / "tables"))
+    plan = build_plan(find_spec(table), resolve_scale("quick", None))
+    assert plan.data_fingerprint is not None, plan.data_missing
+    clips = clipset(plan.dataset)
+    bands = [b for b in plan.bands if b.implemented]
+    assert bands
+    for b in bands:
+        proto = get_protocol(b.protocol, b.params)
+        view, full = evaluator_split(proto, clips), evaluator_clipset(proto, clips)
+        assert view.fingerprint == full.fingerprint
+        assert view.label_names == full.label_names and view.n_classes == full.n_classes
+        assert np.array_equal(view.labels, full.labels)
+        assert np.array_equal(view.split, full.split)
+
+
+def test_every_methods_card_is_its_generators():
+    """A method's torch-free card (what the planner reads) and its Generator class (what a
+    job runs) say the same: method id, Config, trains_as, inference fields, components and
+    device use (issue 31)."""
+    from repro.models.base import GENERATOR_MODULES, generator_class, method_card
+
+    for m in GENERATOR_MODULES:
+        card, cls = method_card(m), generator_class(m)
+        assert cls.card is card, m
+        assert (cls.method_id, cls.Config, cls.trains_as, tuple(cls.inference_fields),
+                dict(cls.components), cls.uses_device) == (
+            card.method_id, card.Config, card.trains_as, tuple(card.inference_fields),
+            dict(card.components), card.uses_device), m
+
+
+def test_a_method_without_its_card_module_is_one_config_error(monkeypatch):
+    """A method listed without its ``<module>_config`` is a ConfigError naming the missing
+    module (a row reason at plan time), not a traceback."""
+    from repro.errors import ConfigError
+    from repro.models import base
+
+    monkeypatch.setitem(base.GENERATOR_MODULES, "nocard", "repro.models.nocard")
+    with pytest.raises(ConfigError, match="repro.models.nocard_config is missing"):
+        base.method_card("nocard")

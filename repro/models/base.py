@@ -144,7 +144,14 @@ def method_card(method_id: str) -> MethodCard:
     """The :class:`MethodCard` of ``method_id`` (ConfigError if unknown), from the method's
     ``<module>_config`` alone: the network module (and torch) is not imported."""
     if method_id not in _CARDS and method_id in GENERATOR_MODULES:
-        importlib.import_module(f"{GENERATOR_MODULES[method_id]}_config")
+        name = f"{GENERATOR_MODULES[method_id]}_config"
+        try:
+            importlib.import_module(name)
+        except ModuleNotFoundError as e:
+            if e.name != name:
+                raise
+            raise ConfigError(f"method {method_id!r}: its card module {name} is missing (each "
+                              f"method's Config and MethodCard live there, torch-free)") from None
     return _registered(_CARDS, method_id)
 
 

@@ -33,7 +33,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Sequence
 
-
 from repro.motion.heading import (HEADING_AXES, BodyFrame, body_frame, chain_global_rotmat,
                                   heading_angle, yaw_matrix)
 from repro.motion.motion import Motion

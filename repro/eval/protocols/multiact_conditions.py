@@ -31,7 +31,6 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-
 from repro.data.pairs import GeneratedPairs, PairItems, gather_frames, last_frames
 from repro.errors import ConfigError, DataError
 from repro.motion.motion import Motion
