@@ -214,6 +214,42 @@ def test_source_hash_follows_repro_imports_and_changes_with_the_code(jobs_module
         dict(source_manifest(MOD))["repro.keys"]
 
 
+def test_parsed_imports_are_kept_between_processes_by_file_digest(jobs_module, _repro_home,
+                                                                    monkeypatch):
+    """What each file imports is stored under REPRO_HOME keyed by its bytes' digest (issue 31):
+    a later process hashes without parsing an unchanged file, and an edited one is parsed."""
+    import ast
+
+    from repro.engine.source_hash import IMPORTS_CACHE
+
+    first = source_manifest(MOD)
+    assert (_repro_home / IMPORTS_CACHE).is_file()
+    clear_source_cache()  # as a new process: only the file is left
+    parsed = []
+    real_parse = ast.parse
+    monkeypatch.setattr(ast, "parse", lambda src, *a, **k: parsed.append(k.get("filename"))
+                        or real_parse(src, *a, **k))
+    assert source_manifest(MOD) == first and parsed == []
+    jobs_module.path.write_text(JOBS_SOURCE.replace("0.5 * w", "0.25 * w"))
+    clear_source_cache()
+    second = source_manifest(MOD)
+    assert second != first and parsed == [str(jobs_module.path)]
+    # a damaged entry, a file of another schema or of another reader: a miss, same hashes
+    cache = _repro_home / IMPORTS_CACHE
+    data = json.loads(cache.read_text())
+    assert data["schema"] == 1 and len(data["reader"]) == 64
+    data["entries"] = {k: (7 if MOD in k else v) for k, v in data["entries"].items()}
+    cache.write_text(json.dumps(data))
+    clear_source_cache()
+    parsed.clear()
+    assert source_manifest(MOD) == second and parsed == [str(jobs_module.path)]
+    for damaged in ({**data, "reader": "0" * 64}, {**data, "schema": 0}, [1, 2], "{"):
+        cache.write_text(damaged if isinstance(damaged, str) else json.dumps(damaged))
+        clear_source_cache()
+        parsed.clear()
+        assert source_manifest(MOD) == second and str(jobs_module.path) in parsed
+
+
 def test_a_plugin_loaded_by_name_is_part_of_the_key(jobs_module, tmp_path):
     """A module the job loads through a registry (no import statement leads to it) is hashed
     when the job names it in ``plugins``: editing it changes the key."""

@@ -199,8 +199,8 @@ def test_training_is_reproducible(two_class):
 # --- fingerprint ---------------------------------------------------------------------------
 
 def test_fingerprint_changes_with_arch_heading_data_and_weights(trained_gru):
-    from repro.eval.classifiers import architecture
     from repro.eval.evaluator import fingerprint_of, input_representation
+    from repro.eval.settings import architecture
 
     s = trained_gru.settings
     base = dict(kind="a2m_gru", architecture=architecture("a2m_gru", s),

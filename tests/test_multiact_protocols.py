@@ -257,8 +257,8 @@ def _real_samples(items: PairItems, *, junk_action=False, junk_transition=False)
 
 
 def test_multiact_gru_kind():
-    from repro.eval.classifiers import GRURecogniser, architecture, build_module
-    from repro.eval.settings import GRU_SHAPES, KINDS, resolve_settings
+    from repro.eval.classifiers import GRURecogniser, build_module
+    from repro.eval.settings import GRU_SHAPES, KINDS, architecture, resolve_settings
 
     assert "multiact_gru" in KINDS and GRU_SHAPES["multiact_gru"] == {"layers": 4, "hidden": 256}
     s = resolve_settings("quick")
@@ -273,9 +273,9 @@ def test_multiact_gru_kind():
 
 def test_real_recogniser_plumbing(clips, source):
     """measure() through a real (untrained) multiact_gru Evaluator with heading removed."""
-    from repro.eval.classifiers import architecture, build_module
+    from repro.eval.classifiers import build_module
     from repro.eval.evaluator import Evaluator, weights_sha256
-    from repro.eval.settings import resolve_settings
+    from repro.eval.settings import architecture, resolve_settings
 
     s = resolve_settings("quick", {"heading": "remove", "window": 16})
     torch.manual_seed(0)

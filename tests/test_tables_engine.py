@@ -171,6 +171,20 @@ def test_a_cached_rerun_reads_no_evaluator_weights(tiny_tables, _repro_home, mon
                        weights=False).features(np.zeros((1, 30, 19, 3)))
 
 
+def _heavy_imports(args: list[str], env: dict[str, str]) -> str:
+    """The last line of ``repro ARGS`` run in a fresh process with ``env`` added: ``HEAVY [...]``,
+    which of torch and roma the process imported (it must exit 0)."""
+    import os
+
+    code = (f"import sys; from cli.main import main; rc = main({args!r}); "
+            "heavy = sorted(m for m in ('torch', 'roma') if m in sys.modules); "
+            "print('HEAVY', heavy); sys.exit(rc)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=False, cwd=repo_root(), env={**os.environ, **env})
+    assert out.returncode == 0, out.stderr
+    return out.stdout.strip().splitlines()[-1]
+
+
 def test_show_and_list_of_a_run_table_import_no_torch(tiny_tables, _repro_home):
     """``repro show`` and ``repro list`` read run records only: no torch, no roma in the
     process (fixed costs, issue 17)."""
@@ -178,16 +192,20 @@ def test_show_and_list_of_a_run_table_import_no_torch(tiny_tables, _repro_home):
 
     run_table("marionette/table1", scale="quick", progress=False)
     for args in (["show", "marionette/table1"], ["list"]):
-        code = (f"import sys; from cli.main import main; rc = main({args!r}); "
-                "heavy = sorted(m for m in ('torch', 'roma') if m in sys.modules); "
-                "print('HEAVY', heavy); sys.exit(rc)")
-        import os
+        assert _heavy_imports(args, {"REPRO_HOME": str(_repro_home),
+                                     "REPRO_TABLES": str(tiny_tables)}) == "HEAVY []", args
 
-        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                             check=False, cwd=repo_root(), env={**os.environ, "REPRO_HOME": str(_repro_home),
-                                                   "REPRO_TABLES": str(tiny_tables)})
-        assert out.returncode == 0, out.stderr
-        assert "HEAVY []" in out.stdout, (args, out.stdout[-300:])
+
+@pytest.mark.parametrize("table", ["marionette/table1", "multiact/table1", "odmo/table1"])
+def test_plan_on_the_bundled_data_imports_no_torch(table, _repro_home):
+    """``repro plan`` computes nothing: every row's config comes from its method's torch-free
+    card, every band's protocol module imports torch only to compute, and MultiAct's evaluator
+    split is keyed without resampling its clips: no torch, no roma in the process (issue 31)."""
+    from repro.data.bundle import MINI_NAME
+    from repro.data.registry import load_clipset
+
+    load_clipset(MINI_NAME)  # the bundle's first decoding (torch) is computing: done once before
+    assert _heavy_imports(["plan", table], {"REPRO_HOME": str(_repro_home)}) == "HEAVY []"
 
 
 def test_a_failing_method_fails_its_row_and_the_others_go_on(tiny_tables, _repro_home,
@@ -449,3 +467,56 @@ def test_retrain_gives_each_replicate_its_own_training(tiny_tables, _repro_home)
     assert not any("independent trainings" in line for line in plain["footer"])
     assert latest_run("marionette/table1", "quick").name == run2
     assert latest_run("marionette/table1", "quick", retrain=False).name == run1
+
+
+@pytest.mark.parametrize("table", ["multiact/table1", "multiact/table3", "odmo/table1",
+                                   "marionette/table1"])
+def test_the_plans_split_view_is_the_evaluators_clipset(table, _repro_home, monkeypatch):
+    """What a plan keys and split-checks the evaluator from (``evaluator_split``, no clips
+    built) equals the clip set the evaluator trains on (``evaluator_clipset``): fingerprint,
+    labels, split, label names, classes (issue 31), for every band of a spec per paper kind."""
+    from repro.engine.steps import clipset, evaluator_clipset, evaluator_split
+    from repro.engine.table_plan import build_plan
+    from repro.eval.protocols import get_protocol
+    from repro.specs.load import find_spec
+    from repro.specs.scales import resolve_scale
+
+    monkeypatch.setenv("REPRO_TABLES", str(repo_root() / "tables"))
+    plan = build_plan(find_spec(table), resolve_scale("quick", None))
+    assert plan.data_fingerprint is not None, plan.data_missing
+    clips = clipset(plan.dataset)
+    bands = [b for b in plan.bands if b.implemented]
+    assert bands
+    for b in bands:
+        proto = get_protocol(b.protocol, b.params)
+        view, full = evaluator_split(proto, clips), evaluator_clipset(proto, clips)
+        assert view.fingerprint == full.fingerprint
+        assert view.label_names == full.label_names and view.n_classes == full.n_classes
+        assert np.array_equal(view.labels, full.labels)
+        assert np.array_equal(view.split, full.split)
+
+
+def test_every_methods_card_is_its_generators():
+    """A method's torch-free card (what the planner reads) and its Generator class (what a
+    job runs) say the same: method id, Config, trains_as, inference fields, components and
+    device use (issue 31)."""
+    from repro.models.base import GENERATOR_MODULES, generator_class, method_card
+
+    for m in GENERATOR_MODULES:
+        card, cls = method_card(m), generator_class(m)
+        assert cls.card is card, m
+        assert (cls.method_id, cls.Config, cls.trains_as, tuple(cls.inference_fields),
+                dict(cls.components), cls.uses_device) == (
+            card.method_id, card.Config, card.trains_as, tuple(card.inference_fields),
+            dict(card.components), card.uses_device), m
+
+
+def test_a_method_without_its_card_module_is_one_config_error(monkeypatch):
+    """A method listed without its ``<module>_config`` is a ConfigError naming the missing
+    module (a row reason at plan time), not a traceback."""
+    from repro.errors import ConfigError
+    from repro.models import base
+
+    monkeypatch.setitem(base.GENERATOR_MODULES, "nocard", "repro.models.nocard")
+    with pytest.raises(ConfigError, match="repro.models.nocard_config is missing"):
+        base.method_card("nocard")

@@ -33,7 +33,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal, Sequence
 
-import torch
 from pydantic import BaseModel, ConfigDict, field_validator
 
 from repro.config_errors import resolve_config
@@ -150,6 +149,8 @@ class ActionItems(ItemSet):
 
     def subset(self, index) -> "ActionItems":
         """Items ``index`` (a sequence/tensor of positions), padding cropped to their lengths."""
+        import torch
+
         idx = torch.as_tensor(index, dtype=torch.long).reshape(-1)
         T = int(self.lengths[idx].max()) if idx.numel() else 1
         opt = lambda t: None if t is None else t[idx]  # noqa: E731
@@ -165,6 +166,8 @@ class ActionItems(ItemSet):
     # -- frames ----------------------------------------------------------------------------
     def valid_mask(self) -> torch.Tensor:
         """(N, T_max) bool: True on an item's action frames."""
+        import torch
+
         T = self.action.n_frames
         return torch.arange(T)[None, :] < self.lengths[:, None]
 
@@ -206,6 +209,8 @@ class GeneratedItems:
         return self.motion.joints()
 
     def valid_mask(self) -> torch.Tensor:
+        import torch
+
         return torch.arange(self.motion.n_frames)[None, :] < self.lengths[:, None]
 
 
@@ -215,6 +220,8 @@ class GeneratedItems:
 
 def pad_last(x: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
     """Repeat each item's last valid frame (dim 1) past its length."""
+    import torch
+
     T = x.shape[1]
     t = torch.minimum(torch.arange(T, device=lengths.device)[None, :], (lengths - 1).clamp(min=0)[:, None])
     return x[torch.arange(x.shape[0], device=x.device)[:, None], t]
@@ -231,6 +238,8 @@ def condition_items(initial_world: Motion, labels: Sequence[int], next_labels: S
     frame (zeros when None); the ``action`` of such items is a placeholder holding the
     normalised last initial pose (they carry conditions only, not targets).
     """
+    import torch
+
     config = ItemsConfig.resolve(config)
     N, K = initial_world.batch_size, initial_world.n_frames
     lengths = torch.as_tensor(lengths, dtype=torch.long).reshape(N)

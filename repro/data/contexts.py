@@ -49,7 +49,6 @@ from __future__ import annotations
 from typing import ClassVar, Literal
 
 import numpy as np
-import torch
 from pydantic import Field, model_validator
 
 from repro.data.action_items import ActionItems, ItemsConfig, pad_last
@@ -144,16 +143,20 @@ class ActionSource(ItemSource):
         return self.items(clipset, TRAIN)
 
 
-def sequence_items(seqs, split: int | None, config=None, *, dtype: torch.dtype = torch.float32):
+def sequence_items(seqs, split: int | None, config=None, *,
+                   dtype: torch.dtype | None = None):
     """One item per ``ROLE_ACTION`` segment of the sequences of ``split`` (module docstring).
 
     ``P^ini``: :meth:`SequenceSet.context` (``n_init`` frames before the segment, in the source
     clip's frame); the action: the source clip from the segment's cut, ``T = min(length,
     max_frames)`` frames; the next tag: the following segment's label; ``clip_index``: the source
     clip; ``segment_index``: the segment.  Everything Marionette-normalised at ``P₋₁`` as in
-    :func:`build_items`."""
+    :func:`build_items`.  ``dtype``: None is float32."""
+    import torch
+
     from repro.data.sequences import ROLE_ACTION
 
+    dtype = torch.float32 if dtype is None else dtype
     config = ItemsConfig.resolve(config)
     K = config.n_init
     clips = seqs.clips
@@ -189,10 +192,11 @@ def sequence_items(seqs, split: int | None, config=None, *, dtype: torch.dtype =
 
 
 def build_items(clips, split: int | None = None, config: ItemsConfig | dict | None = None,
-                *, dtype: torch.dtype = torch.float32) -> ActionItems:
+                *, dtype: torch.dtype | None = None) -> ActionItems:
     """Single-action items from the clips of ``clips`` in ``split`` (TRAIN, TEST or None for
     all), one per clip long enough for ``n_init + min_frames`` frames (others are skipped and
-    counted in ``n_skipped``); the ``same_clip`` context (module docstring)."""
+    counted in ``n_skipped``); the ``same_clip`` context (module docstring).  ``dtype``: None
+    is float32."""
     config = ItemsConfig.resolve(config)
     K = config.n_init
     idx = clips.indices(split=split)
@@ -219,6 +223,8 @@ def items_from_windows(whole: Motion, lengths, labels, next_labels, clips, confi
     padded with its last one); Marionette-normalised at ``P₋₁``; trajectory and in-place
     classes as in the module docstring.  The one tail of :func:`build_items` and of
     :func:`sequence_items`."""
+    import torch
+
     K = config.n_init
     Tmax = whole.n_frames - K
     lengths = torch.as_tensor(np.asarray(lengths, np.int64))
@@ -297,6 +303,8 @@ def next_tags(clips, item_clips: np.ndarray, end_frames: np.ndarray,
 
 def _pose_features(clips, rows: np.ndarray, axis: str) -> np.ndarray:
     """Heading- and position-normalised joint positions (n, J·3) of packed frame ``rows``."""
+    import torch
+
     q = torch.from_numpy(np.ascontiguousarray(clips.rotations[rows])).to(torch.float64)
     heading = body_heading(clips.skeleton, quat_to_matrix(q), axis=axis).numpy()
     j = np.asarray(clips.joints[rows], dtype=np.float64) - np.asarray(clips.root[rows],

@@ -24,7 +24,8 @@ What they share lives here, once:
   construction version under its own name (:attr:`ItemSource.VERSION_FIELD`);
   :meth:`ItemSource.from_description` reads it back (refusing another version);
 - :meth:`ItemSource.split_clipset` (the split the evaluator also trains on, so no scored test
-  clip was seen by the recogniser), :meth:`ItemSource.train_items` and
+  clip was seen by the recogniser; :meth:`ItemSource.split_view`: what a plan reads of it,
+  without its frames), :meth:`ItemSource.train_items` and
   :meth:`ItemSource.training_items` (the items a method of a given ``item_kind`` trains on);
 - :meth:`ItemSource.cached_build`: one in-process LRU (:func:`cached`), keyed by the source's
   description, the data set's fingerprint and what is built;
@@ -37,14 +38,15 @@ family) picks the specialisation a description names.
 from __future__ import annotations
 
 from collections import OrderedDict
-from typing import ClassVar
+from dataclasses import dataclass
+from typing import Any, ClassVar
 
 from pydantic import BaseModel, ConfigDict
 
 from repro.errors import ConfigError, DataError
 from repro.keys import content_key
 
-__all__ = ["ItemSource", "ItemSet", "cached", "clear_cache"]
+__all__ = ["ItemSource", "ItemSet", "SplitView", "cached", "clear_cache"]
 
 # Items are immutable in use and cost seconds to build: keep the last few per process.
 _CACHE: "OrderedDict[str, object]" = OrderedDict()
@@ -69,6 +71,21 @@ def cached(key: str, build):
 def clear_cache() -> None:
     """Forget every build :func:`cached` holds (tests: the next build is made afresh)."""
     _CACHE.clear()
+
+
+@dataclass(frozen=True)
+class SplitView:
+    """The clip set an evaluator trains on as a plan reads it (its key, the split check), without
+    its frames: :meth:`ItemSource.split_view`."""
+
+    fingerprint: str
+    labels: Any  # (n_clips,) int
+    split: Any   # (n_clips,) int8: TRAIN / TEST
+    label_names: tuple[str, ...]
+
+    @property
+    def n_classes(self) -> int:
+        return len(self.label_names)
 
 
 class ItemSource(BaseModel):
@@ -130,6 +147,12 @@ class ItemSource(BaseModel):
         """``clipset`` with the split (and frame rate) the items use; the evaluator trains on
         this one too, so that no scored test clip was seen by the recogniser."""
         raise NotImplementedError
+
+    def split_view(self, clipset):
+        """What a plan reads of :meth:`split_clipset` (``fingerprint``, ``labels``, ``split``,
+        ``label_names``, ``n_classes``): here the clip set itself; a source whose split clip set
+        costs work to build (MultiAct's resampling) answers a :class:`SplitView` instead."""
+        return self.split_clipset(clipset)
 
     def train_items(self, clipset):
         """The items of the training split (never a test clip)."""

@@ -49,7 +49,6 @@ from dataclasses import dataclass
 from typing import ClassVar, Literal
 
 import numpy as np
-import torch
 from pydantic import Field
 
 from repro.data.action_items import ActionItems, ItemsConfig
@@ -158,14 +157,20 @@ class WindowItems(ItemSet):
 
     @property
     def labels(self) -> torch.Tensor:
+        import torch
+
         return torch.from_numpy(self.clipset.labels[self.indices].astype(np.int64))
 
     @property
     def styles(self) -> torch.Tensor:
+        import torch
+
         return torch.from_numpy(self.clipset.styles[self.indices].astype(np.int64))
 
     @property
     def clip_index(self) -> torch.Tensor:
+        import torch
+
         return torch.from_numpy(self.indices.copy())
 
     def key(self) -> str:
@@ -257,6 +262,8 @@ class WindowItems(ItemSet):
         rotations from the clip set, the window's first-frame root at the origin, no rotation;
         duration ``window`` for all; initial motion = the window's first frame; next tag = the
         item's own tag (unused by these methods)."""
+        import torch
+
         if self.source.scale != 1.0:
             raise ConfigError("windows with scale != 1 have no rotation form (ACTOR, A2M need one)")
         m = Motion.from_clipset(self.clipset, b.indices, b.starts, self.window, pad=True)
@@ -279,6 +286,8 @@ def label_condition_items(label_names, labels, window: int, skeleton, fps: float
     duration ``window`` per item, identity canon (samples come back in the window frame),
     initial motion = ``placeholder`` (a (1, 1) Motion from the *training* pool, never from a
     scored clip; read only by methods that use an initial pose)."""
+    import torch
+
     labels = torch.as_tensor(np.asarray(labels, np.int64))
     N = int(labels.numel())
     init = placeholder.select(torch.zeros(N, dtype=torch.long))

@@ -31,7 +31,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from repro.data.action_items import ActionItems, ItemsConfig
 from repro.data.item_sources import ItemSet
@@ -44,6 +43,8 @@ PAIRS_VERSION = 1
 
 
 def _long(x, n: int, name: str) -> torch.Tensor:
+    import torch
+
     t = torch.as_tensor(np.asarray(x), dtype=torch.long).reshape(-1)
     if t.numel() != n:
         raise ValueError(f"{name} must have {n} entries, got {t.numel()}")
@@ -54,6 +55,8 @@ def gather_frames(motion: Motion, start: torch.Tensor, length: torch.Tensor,
                   width: int | None = None) -> Motion:
     """Per item ``b``, frames ``start[b] .. start[b]+length[b]−1`` of ``motion`` left-aligned
     into ``width`` (default ``max(length)``) frames; past ``length[b]`` the last one repeats."""
+    import torch
+
     start = torch.as_tensor(start, dtype=torch.long)
     length = torch.as_tensor(length, dtype=torch.long)
     W = int(length.max()) if width is None else int(width)
@@ -67,6 +70,8 @@ def gather_frames(motion: Motion, start: torch.Tensor, length: torch.Tensor,
 def last_frames(motion: Motion, lengths: torch.Tensor, k: int) -> Motion:
     """The last ``k`` valid frames of each item (``lengths`` valid frames each); an item with
     fewer than ``k`` frames repeats its first frame at the front."""
+    import torch
+
     lengths = torch.as_tensor(lengths, dtype=torch.long)
     t = torch.arange(k).unsqueeze(0)
     idx = (lengths.unsqueeze(1) - k + t).clamp(min=0)
@@ -95,6 +100,8 @@ class PairItems(ItemSet):
     clip_index: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
+        import torch
+
         N = self.motion.batch_size
         if self.clip_index is not None:
             object.__setattr__(self, "clip_index", _long(self.clip_index, N, "clip_index"))
@@ -135,6 +142,8 @@ class PairItems(ItemSet):
         return h
 
     def subset(self, index) -> "PairItems":
+        import torch
+
         idx = torch.as_tensor(np.asarray(index), dtype=torch.long).reshape(-1)
         return PairItems(self.motion.select(idx), self.l_p[idx], self.l_t[idx], self.l_c[idx],
                          self.prev_labels[idx], self.labels[idx], self.label_names,
@@ -144,6 +153,8 @@ class PairItems(ItemSet):
     # -- the parts (left-aligned, padded by repeating each item's last frame) ------------------
     def prev(self) -> tuple[Motion, torch.Tensor]:
         """``S_p`` (N, max l_p) and ``l_p``."""
+        import torch
+
         return gather_frames(self.motion, torch.zeros_like(self.l_p), self.l_p), self.l_p
 
     def transition(self) -> tuple[Motion, torch.Tensor]:
@@ -171,6 +182,8 @@ class PairItems(ItemSet):
         placeholder: no label-only generator reads it); ``trajectory`` = the action's root
         ground path in the item frame, ``in_place`` all False (no class statistics here);
         ``clip_index`` / ``segment_index`` carried over."""
+        import torch
+
         K = int(n_init)
         if K < 1:
             raise ValueError("n_init must be >= 1")
@@ -213,6 +226,8 @@ class GeneratedPairs:
         return self.motion.batch_size
 
     def transition(self) -> tuple[Motion, torch.Tensor]:
+        import torch
+
         return gather_frames(self.motion, torch.zeros_like(self.l_t), self.l_t.clamp(min=1)), self.l_t
 
     def action(self) -> tuple[Motion, torch.Tensor]:
@@ -226,6 +241,8 @@ class GeneratedPairs:
 
     @classmethod
     def from_arrays(cls, arrays, skeleton) -> "GeneratedPairs":
+        import torch
+
         m = Motion(torch.from_numpy(np.asarray(arrays["root"])),
                    torch.from_numpy(np.asarray(arrays["rot6d"])), skeleton, float(arrays["fps"]))
         return cls(m, arrays["l_t"], arrays["l_c"])
@@ -233,6 +250,8 @@ class GeneratedPairs:
     @staticmethod
     def cat(parts: "list[GeneratedPairs]") -> "GeneratedPairs":
         """One batch from several (padded to the longest, repeating last frames)."""
+        import torch
+
         W = max(p.motion.n_frames for p in parts)
         ms = [gather_frames(p.motion, torch.zeros_like(p.l_t), p.l_t + p.l_c, W) for p in parts]
         return GeneratedPairs(Motion.cat_batch(ms), torch.cat([p.l_t for p in parts]),

@@ -62,11 +62,10 @@ import math
 from typing import ClassVar, Literal
 
 import numpy as np
-import torch
 from pydantic import Field, field_validator, model_validator
 
 from repro.data.clipset import TEST, TRAIN
-from repro.data.item_sources import ItemSource, cached
+from repro.data.item_sources import ItemSource, SplitView, cached
 from repro.data.pairs import PAIRS_VERSION, PairItems
 from repro.errors import DataError
 from repro.keys import content_key
@@ -145,6 +144,14 @@ class PairSource(ItemSource):
         return cached(content_key({"what": "clipset", "data": clipset.fingerprint,
                                    "fps": self.fps}),
                       lambda: resample_clipset(clipset, self.fps))
+
+    def split_view(self, clipset):
+        """What a plan reads of :meth:`split_clipset` without resampling (torch, seconds):
+        resampling keeps every clip's label and split."""
+        fp = resampled_fingerprint(clipset, self.fps)
+        if fp is None:
+            return clipset
+        return SplitView(fp, clipset.labels, clipset.split, tuple(clipset.label_names))
 
     def sequences(self, clipset):
         """The composed sequences of ``clipset`` at its native fps (in-process cached).  A
@@ -307,6 +314,8 @@ class PairSource(ItemSource):
                 "dropped": dropped, "sequences": seqs.fingerprint}
 
     def _items(self, clipset, tab: dict, rows: np.ndarray, what: str) -> PairItems:
+        import torch
+
         from repro.motion.motion import Motion
 
         seqs = self.sequences(clipset)
@@ -357,6 +366,8 @@ def _resampled(seqs, fps: float) -> dict:
     """Every sequence of ``seqs`` resampled once to ``fps`` (module docstring, step 2):
     ``root`` (F, 3) and ``rot6d`` (F, J, 6) float32 tensors packed by sequence, ``starts`` and
     ``lengths`` (S,) int64.  In-process cached by the sequences' fingerprint."""
+    import torch
+
     from repro.motion.motion import Motion
     from repro.motion.resample import resample_fps
     from repro.motion.rotations import quat_to_6d
@@ -388,16 +399,27 @@ def resampled_sequences(seqs, fps: float) -> dict:
     return _resampled(seqs, fps)
 
 
+def resampled_fingerprint(clips, fps: float) -> str | None:
+    """The fingerprint of :func:`resample_clipset` ``(clips, fps)``, computed without
+    resampling; None when ``clips`` already runs at ``fps`` (the same object comes back)."""
+    if abs(float(clips.fps) - float(fps)) < 1e-9:
+        return None
+    return content_key({"base": clips.fingerprint, "resample": "slerp", "fps": float(fps)})
+
+
 def resample_clipset(clips, fps: float):
     """``clips`` with every clip resampled to ``fps`` (slerp rotations, linear root,
     :func:`repro.motion.resample.resample_clip`; joints by forward kinematics), split, labels
     and styles kept; the same object when it already runs at ``fps``."""
+    import torch
+
     from repro.data.clipset import ClipSet
     from repro.motion.resample import resample_clip
     from repro.motion.rotations import quat_to_matrix
     from repro.motion.skeleton import forward_kinematics
 
-    if abs(float(clips.fps) - float(fps)) < 1e-9:
+    fp = resampled_fingerprint(clips, fps)
+    if fp is None:
         return clips
     quats, roots = [], []
     with _one_thread():
@@ -416,7 +438,6 @@ def resample_clipset(clips, fps: float):
                 torch.from_numpy(r[s0:s0 + step])).numpy()
     lengths = np.array([x.shape[0] for x in quats], np.int64)
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
-    fp = content_key({"base": clips.fingerprint, "resample": "slerp", "fps": float(fps)})
     return ClipSet(name=f"{clips.name}@{float(fps):g}fps", skeleton=clips.skeleton,
                    fps=float(fps), rotations=q.astype(np.float32), root=r.astype(np.float32),
                    joints=joints, starts=starts, lengths=lengths, labels=clips.labels,
@@ -429,9 +450,13 @@ class _one_thread:
     """Run torch on one thread (batched kernels round differently with the thread count)."""
 
     def __enter__(self):
+        import torch
+
         self.before = torch.get_num_threads()
         torch.set_num_threads(1)
 
     def __exit__(self, *exc):
+        import torch
+
         torch.set_num_threads(self.before)
 

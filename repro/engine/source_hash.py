@@ -16,7 +16,12 @@ harmless over-approximation).  Third-party libraries are not hashed: their versi
 run record.
 
 Results are cached per process (:func:`clear_source_cache` empties the cache): a process runs
-the code it imported, so its keys describe that code.
+the code it imported, so its keys describe that code.  What each file imports is also kept
+between processes, keyed by the module name and the sha256 of the file's bytes (so an entry
+never goes stale; the file also names its schema and the reader that wrote it, and anything
+else is a miss), in ``<REPRO_HOME>/cache/source-imports.json`` (:data:`IMPORTS_CACHE`):
+parsing the ~400 files a table's keys cover was most of a fully cached ``repro plan`` (issue
+31); every file is still read and hashed.
 """
 
 from __future__ import annotations
@@ -24,6 +29,8 @@ from __future__ import annotations
 import ast
 import importlib.machinery
 import importlib.util
+import json
+import os
 import sys
 from functools import lru_cache
 from pathlib import Path
@@ -32,6 +39,16 @@ from repro.errors import ConfigError
 from repro.keys import content_key, sha256_file
 
 ROOT_PACKAGE = "repro"
+#: the file under ``REPRO_HOME`` holding each parsed file's imports (module docstring)
+IMPORTS_CACHE = Path("cache") / "source-imports.json"
+#: at most this many entries: past it, a write keeps only the entries this process used
+IMPORTS_CACHE_MAX = 4000
+#: the cache file's layout: ``{"schema": 1, "reader": <sha256 of this module>, "entries": {…}}``
+IMPORTS_CACHE_SCHEMA = 1
+
+_parsed: dict[str, list[str]] | None = None  # IMPORTS_CACHE's entries, read on first use
+_parsed_used: set[str] = set()
+_parsed_dirty = False
 
 
 def _find_spec(name: str):
@@ -108,12 +125,66 @@ def _module_entry(name: str) -> tuple[str, tuple[str, ...]] | None:
     digest = sha256_file(path)
     if path.suffix != ".py":
         return digest, ()
-    try:
-        tree = ast.parse(path.read_bytes(), filename=str(path))
-    except SyntaxError:
-        return digest, ()  # the bytes are hashed; importing it will fail loudly anyway
     is_pkg = spec.submodule_search_locations is not None
-    return digest, tuple(sorted(_imported_names(tree, name, is_pkg)))
+    key = f"{name}:{int(is_pkg)}:{digest}"
+    known = _parsed_entries()
+    entry = known.get(key)
+    if not (isinstance(entry, list) and all(isinstance(i, str) for i in entry)):
+        # not known yet, or a damaged entry (a miss: parsed again and written back right)
+        try:
+            tree = ast.parse(path.read_bytes(), filename=str(path))
+        except SyntaxError:
+            return digest, ()  # the bytes are hashed; importing it will fail loudly anyway
+        global _parsed_dirty
+        known[key], _parsed_dirty = sorted(_imported_names(tree, name, is_pkg)), True
+    _parsed_used.add(key)
+    return digest, tuple(known[key])
+
+
+@lru_cache(maxsize=1)
+def _reader_id() -> str:
+    """The sha256 of this module's bytes: entries written by another version of the import
+    reader (:func:`_imported_names`) are not used."""
+    return sha256_file(Path(__file__))
+
+
+def _parsed_entries() -> dict[str, list[str]]:
+    """:data:`IMPORTS_CACHE`'s entries: empty when the file is missing, unreadable, of another
+    schema or written by another version of this reader (each a miss, never an error)."""
+    global _parsed
+    if _parsed is None:
+        from repro.paths import repro_home
+
+        try:
+            data = json.loads((repro_home() / IMPORTS_CACHE).read_text())
+        except (OSError, ValueError):
+            data = None
+        ok = (isinstance(data, dict) and data.get("schema") == IMPORTS_CACHE_SCHEMA
+              and data.get("reader") == _reader_id() and isinstance(data.get("entries"), dict))
+        _parsed = dict(data["entries"]) if ok else {}
+    return _parsed
+
+
+def _save_parsed() -> None:
+    """Write the entries parsed by this process into :data:`IMPORTS_CACHE` (atomically; a
+    write that fails is skipped: the next process parses again)."""
+    global _parsed_dirty
+    if not _parsed_dirty or _parsed is None:
+        return
+    from repro.paths import repro_home
+
+    keep = _parsed if len(_parsed) <= IMPORTS_CACHE_MAX else {
+        k: v for k, v in _parsed.items() if k in _parsed_used}
+    path = repro_home() / IMPORTS_CACHE
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp.write_text(json.dumps({"schema": IMPORTS_CACHE_SCHEMA, "reader": _reader_id(),
+                                   "entries": keep}, sort_keys=True))
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+    _parsed_dirty = False
 
 
 @lru_cache(maxsize=None)
@@ -144,6 +215,7 @@ def source_manifest(module_name: str) -> tuple[tuple[str, str], ...]:
         for imp in imports:
             if in_scope(imp):
                 todo.extend(n for n in _with_parents(imp) if n not in seen)
+    _save_parsed()
     return tuple(sorted(seen.items()))
 
 
@@ -164,7 +236,11 @@ def source_hash(module_name: str, *more: str) -> str:
 
 
 def clear_source_cache() -> None:
-    """Forget cached hashes (tests; long-lived processes that reload code)."""
+    """Forget cached hashes (tests; long-lived processes that reload code) and the entries of
+    :data:`IMPORTS_CACHE` read so far (the next use reads the file again)."""
+    global _parsed, _parsed_dirty
+    _parsed, _parsed_dirty = None, False
+    _parsed_used.clear()
     _module_entry.cache_clear()
     source_manifest.cache_clear()
     source_hash.cache_clear()

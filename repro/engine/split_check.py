@@ -9,7 +9,7 @@ that split and the Real rows and the scored test items read it, so a class witho
 clip, or without a test clip where the table reads the test side, used to surface only after
 the evaluator had trained (about 9 minutes on a small set: "the test split lacks classes [10,
 11, ...]").  :func:`check_protocol_splits` makes the same splits from the labels alone
-(:func:`repro.engine.steps.evaluator_clipset`, the clip set ``build_plan`` already derived) and
+(:func:`repro.engine.steps.evaluator_split`, the split ``build_plan`` already derived) and
 refuses with the classes by name, their clip counts and the fix; ``repro plan`` and ``repro
 run`` call it right after the plan is built.
 """
@@ -67,7 +67,7 @@ def check_protocol_splits(plan) -> None:
     so)."""
     if plan.data_fingerprint is None or plan.data_missing is not None:
         return
-    from repro.engine.steps import clipset, evaluator_clipset
+    from repro.engine.steps import clipset, evaluator_split
     from repro.eval.protocols import get_protocol
 
     clips, problems, seen = None, [], set()
@@ -76,7 +76,7 @@ def check_protocol_splits(plan) -> None:
             continue
         proto = get_protocol(b.protocol, b.params)
         clips = clips or clipset(plan.dataset)
-        split = evaluator_clipset(proto, clips)
+        split = evaluator_split(proto, clips)
         rule, fix, _ = split_rule(proto)
         test = needs_test_side(proto, plan)
         if (rule, split.fingerprint, test) in seen:

@@ -54,6 +54,14 @@ def evaluator_clipset(protocol, clipset):
     return clipset if split is None else split(clipset)
 
 
+def evaluator_split(protocol, clipset):
+    """What a plan reads of :func:`evaluator_clipset` (``fingerprint``, ``labels``, ``split``,
+    ``label_names``, ``n_classes``), without building clips where that costs work (MultiAct's
+    resampling, which also needs torch): the protocol's ``split_view`` where it has one."""
+    view = getattr(protocol, "split_view", None)
+    return evaluator_clipset(protocol, clipset) if view is None else view(clipset)
+
+
 def evaluator_for(cfg: dict, weights: bool = True):
     """The evaluator of a band: ``cfg`` holds ``dataset``, ``protocol``, ``protocol_params`` and
     ``evaluator`` {dataset, kind, scale, seed[, heading][, settings]} (``settings``: the

@@ -117,18 +117,18 @@ def _method_config(method: str, scale, overrides: dict) -> tuple[dict | None, st
     """The fully resolved config of ``method`` (paper defaults < scale < row overrides), or
     (None, reason) when the method is not built."""
     from repro.errors import ConfigError
-    from repro.models.base import GENERATOR_MODULES, generator_class
+    from repro.models.base import GENERATOR_MODULES, method_card
 
     if method not in GENERATOR_MODULES:
         return None, f"method {method!r} is not implemented yet"
     try:
-        cls = generator_class(method)
+        card = method_card(method)  # its Config without its network: no torch
     except ConfigError as e:
         return None, str(e)
-    base = getattr(cls, "trains_as", None)  # its training method's scale settings come first
+    base = card.trains_as  # its training method's scale settings come first
     scaled = {**(scale.method_config(base) if base else {}), **scale.method_config(method)}
     try:
-        cfg = cls.Config.resolve({**scaled, **overrides}, where=method)
+        cfg = card.Config.resolve({**scaled, **overrides}, where=method)
     except ConfigError as e:  # a variant the spec names but the method does not offer (yet)
         return None, f"variant not implemented: {e}"
     return cfg.model_dump(mode="json"), None
@@ -178,13 +178,13 @@ def _resolve_bands(bands: list[Band], dataset: str, fp: str | None, scale,
         proto = protos[bi] = get_protocol(b.protocol, b.params)
         over, heading = _describe_band(b, proto, dataset, scale, evaluator_seed)
         if fp is not None:
-            from repro.engine.steps import clipset, evaluator_clipset
+            from repro.engine.steps import clipset, evaluator_split
 
             clips = clips or clipset(dataset)
             ev_over = {**over, **({} if heading is None else {"heading": heading})}
             ev_settings = resolve_settings(scale.name, ev_over) if ev_over else settings
             b.evaluator_key = evaluator_key(proto.evaluator_kind, ev_settings,
-                                            evaluator_clipset(proto, clips).fingerprint,
+                                            evaluator_split(proto, clips).fingerprint,
                                             int(evaluator_seed))
     return protos
 
@@ -231,10 +231,10 @@ class _Planner:
         """The profile's device (--device) for a method that ``uses_device``, else None: only
         train and generate compute with a network; measuring runs on the CPU, so its keys
         never name a device and Ray gives it no GPU."""
-        from repro.models.base import generator_class
+        from repro.models.base import method_card
 
         device = getattr(self.scale, "device", "cpu")
-        return device if getattr(generator_class(method), "uses_device", True) else None
+        return device if method_card(method).uses_device else None
 
 
 @dataclass
@@ -271,28 +271,25 @@ def _row_method(row, scale, budget: float) -> tuple[_RowMethod | None, str | Non
     """Resolve a generative row's method, its training method and a composite's components,
     or (None, reason) when any of them is not built."""
     from repro.engine.evidence import scale_epochs
-    from repro.models.base import generator_class
+    from repro.models.base import method_card
 
     mcfg, why = _method_config(row.method, scale, dict(row.overrides))
     if mcfg is None:
         return None, why
     mcfg = scale_epochs(mcfg, budget)
-    cls = generator_class(row.method)
-    method_module = cls.__module__
+    card = method_card(row.method)
     # a method that trains as another (NEURAL MARIONETTE = MarioNet's weights plus
     # inference-time schemes) shares that method's training job
-    train_method = getattr(cls, "trains_as", None) or row.method
-    inference = tuple(getattr(cls, "inference_fields", ()))
+    train_method = card.trains_as or row.method
+    inference = tuple(card.inference_fields)
     train_cfg = {k: v for k, v in mcfg.items() if k not in inference}
-    train_module = generator_class(train_method).__module__
+    train_module = method_card(train_method).module
     # a composite (ACTOR + SSMCT, ACTOR + interpolation) trains nothing of its own: its
     # components are trained as those methods are for any other row (shared jobs)
-    comp_cfgs, why = _scaled_configs("component",
-                                     (getattr(cls, "components", None) or {}).items(), scale,
-                                     budget)
+    comp_cfgs, why = _scaled_configs("component", card.components.items(), scale, budget)
     if comp_cfgs is None:
         return None, why
-    return _RowMethod(row.method, mcfg, method_module, train_method, train_cfg, train_module,
+    return _RowMethod(row.method, mcfg, card.module, train_method, train_cfg, train_module,
                       inference, comp_cfgs), None
 
 
@@ -345,11 +342,11 @@ def _needed_models(proto, takes_models: bool, rm: _RowMethod, scale,
 def _train_jobs(pl: _Planner, b: Band, rm: _RowMethod, needed: dict, seed: int) -> list[Job]:
     """The training jobs one generation reads: the row's own model (none for a composite),
     then the needed models."""
-    from repro.models.base import generator_class
+    from repro.models.base import method_card
 
     own = [] if rm.component_configs else [_train_job(pl, b, seed, rm.train_method, rm.train_config,
                                                rm.train_module)]
-    return own + [_train_job(pl, b, seed, m, c, generator_class(m).__module__)
+    return own + [_train_job(pl, b, seed, m, c, method_card(m).module)
                   for _, (m, c) in needed.items()]
 
 

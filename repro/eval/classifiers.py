@@ -141,16 +141,3 @@ def build_module(kind: str, input_dim: int, n_classes: int, settings) -> nn.Modu
                                      feature_dim=settings.feature_dim,
                                      max_len=max(1024, settings.window))
     raise ValueError(f"unknown evaluator kind {kind!r}")
-
-
-def architecture(kind: str, settings) -> dict:
-    """The architecture description that enters the fingerprint."""
-    from repro.eval.settings import GRU_SHAPES
-
-    if kind in GRU_SHAPES:
-        return {"net": "gru", **GRU_SHAPES[kind], "feature_dim": settings.feature_dim,
-                "feature_act": "tanh", "hidden_init": settings.hidden_init,
-                "readout": settings.readout}
-    return {"net": "transformer", **settings.transformer.model_dump(),
-            "feature_dim": settings.feature_dim, "feature_act": "tanh", "readout": "class_token",
-            "positions": "sinusoidal", "norm_first": True, "activation": "gelu"}

@@ -28,7 +28,6 @@ in the papers; the columns are marked "harness" wherever they are shown.
 from __future__ import annotations
 
 import numpy as np
-import torch
 
 HARNESS_METRICS = ("nn_train_feat", "nn_train_joint", "precision", "recall", "density",
                    "coverage")
@@ -38,6 +37,8 @@ def action_windows(motion, lengths: torch.Tensor, window: int) -> tuple[np.ndarr
     """(N, W, J, 3) float64 joint positions of each action's first ``W`` frames, normalised at
     its first frame (module docstring; frames past an action's end repeat its last valid
     frame), and the valid counts ``min(length, W)``."""
+    import torch
+
     from repro.motion.canon import marionette_normalize
 
     # 3-D translation as the items' own normalisation (D = the anchor's root position): the

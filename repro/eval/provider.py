@@ -48,7 +48,7 @@ def dataset_fingerprint(dataset: str) -> str | None:
 def evaluator_key(kind: str, settings: EvaluatorSettings, data_fingerprint: str, seed: int) -> str:
     from repro.engine.source_hash import source_hash
 
-    from repro.eval.classifiers import architecture
+    from repro.eval.settings import architecture
     from repro.kernels import key as kernel_key
 
     return content_key({

@@ -173,3 +173,16 @@ def resolve_settings(scale: str, overrides: dict | None = None) -> EvaluatorSett
     profile, src = _profile_evaluator(scale)
     raw = _merge(_merge(SCALE_DEFAULTS[scale], profile), overrides or {})
     return parse_settings(raw, file=src, location=f"{scale}.evaluator")
+
+
+def architecture(kind: str, settings) -> dict:
+    """The architecture description that enters the fingerprint (of the networks
+    :func:`repro.eval.classifiers.build_module` builds; here, torch-free, so that a plan keys
+    its evaluators without importing torch)."""
+    if kind in GRU_SHAPES:
+        return {"net": "gru", **GRU_SHAPES[kind], "feature_dim": settings.feature_dim,
+                "feature_act": "tanh", "hidden_init": settings.hidden_init,
+                "readout": settings.readout}
+    return {"net": "transformer", **settings.transformer.model_dump(),
+            "feature_dim": settings.feature_dim, "feature_act": "tanh", "readout": "class_token",
+            "positions": "sinusoidal", "norm_first": True, "activation": "gelu"}

@@ -23,11 +23,11 @@ import numpy as np
 
 from repro.data.clipset import TEST, TRAIN, ClipSet
 from repro.errors import DataError
-from repro.eval.classifiers import architecture, build_module, torch_threads
+from repro.eval.classifiers import build_module, torch_threads
 from repro.eval.evaluator import Evaluator, fingerprint_of, input_representation, weights_sha256
 from repro.eval.features import facing_joint_indices, random_yaw, to_model_input
 from repro.eval.sampling import random_windows, tiling_windows
-from repro.eval.settings import EvaluatorSettings
+from repro.eval.settings import EvaluatorSettings, architecture
 from repro.seeding import derive_seed, numpy_rng
 from repro import kernels
 

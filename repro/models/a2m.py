@@ -77,16 +77,16 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Callable, Literal
+from typing import Callable
 
 import torch
 import torch.nn.functional as F
-from pydantic import model_validator
 from torch import nn
 
 from repro.data.action_items import ActionItems, GeneratedItems, pad_last
 from repro.errors import ConfigError
-from repro.models.base import Generator, GeneratorConfig, register
+from repro.models.a2m_config import A2M, A2MConfig
+from repro.models.base import Generator, register
 from repro.models.baseline_io import (check_items, item_noise, length_mask, pack_poses,
                                       pose_joints, to_generated, unpack_poses)
 from repro.motion.rotations import (axis_angle_to_matrix, matrix_to_6d, matrix_to_axis_angle,
@@ -94,40 +94,6 @@ from repro.motion.rotations import (axis_angle_to_matrix, matrix_to_6d, matrix_t
 from repro.seeding import derive_seed
 from repro.train.loop import to_device
 from repro import kernels
-
-
-class A2MConfig(GeneratorConfig):
-    """Action2Motion hyper-parameters; defaults = the authors' HumanAct12 settings, with Neural
-    Marionette's two adaptations (6D rotations, the initial pose) switched on."""
-
-    representation: Literal["6d", "lie", "xyz"] = "6d"  # NM: 6D (A2M: Lie algebra or xyz)
-    initial_pose: bool = True                     # NM: x_0 = last initial pose (A2M: rest pose)
-    dim_z: int = 30
-    hidden: int = 128
-    prior_layers: int = 1
-    posterior_layers: int = 1
-    decoder_layers: int = 2
-    time_counter: bool = True
-    lambda_kld: float = 1e-3
-    lambda_param: float = 0.0          # extra MSE on the pose parameters (0: A2M's joint loss)
-    self_feed_ratio: float = 0.6       # authors' --tf_ratio (see module docstring)
-    batch_size: int = 128
-    epochs: int = 1000                 # ≈ A2M's 50,000 iterations of 128 on BABEL-MAG's size
-    lr: float = 2e-4
-    weight_decay: float = 1e-5
-    sample_batch_size: int = 256
-
-    @model_validator(mode="after")
-    def _check(self):
-        for f in ("dim_z", "hidden", "prior_layers", "posterior_layers", "decoder_layers",
-                  "batch_size", "epochs", "sample_batch_size"):
-            if getattr(self, f) < 1:
-                raise ValueError(f"{f} must be >= 1")
-        if not 0.0 <= self.self_feed_ratio <= 1.0:
-            raise ValueError("self_feed_ratio must lie in [0, 1]")
-        if self.lambda_kld < 0 or self.lambda_param < 0 or self.lr <= 0:
-            raise ValueError("loss weights must be >= 0 and lr > 0")
-        return self
 
 
 class StackedGRU(nn.Module):
@@ -227,8 +193,7 @@ def kl_gaussians(mu1, logvar1, mu2, logvar2) -> torch.Tensor:
 class A2M(Generator):
     """Action2Motion (NM-adapted) behind the :class:`~repro.models.base.Generator` interface."""
 
-    method_id = "a2m"
-    Config = A2MConfig
+    card = A2M
     uses = frozenset({"label", "length", "initial_motion"})
 
     def __init__(self, config, skeleton, n_classes: int, fps: float):

@@ -1,10 +1,16 @@
 """The one interface every generative method implements: :class:`Generator`.
 
-A method is a subclass with two class attributes,
+A method is a subclass naming its :class:`MethodCard` (``card = ...``), from which it takes
 
 - ``method_id``: the short name used in table specs and content keys (``"marionet"``, ...);
 - ``Config``: a pydantic model (subclass of :class:`GeneratorConfig`, ``extra="forbid"``) whose
-  defaults are the paper's hyper-parameters; scale profiles override fields,
+  defaults are the paper's hyper-parameters; scale profiles override fields;
+- ``trains_as``, ``inference_fields``, ``components``, ``uses_device``: how a table's jobs are
+  made for it (:class:`MethodCard`).
+
+The card and the ``Config`` live in the method's torch-free sibling module ``<module>_config``
+(``repro.models.marionet_config`` beside ``repro.models.marionet``), so that a table's plan
+reads them (:func:`method_card`) without importing the network, hence torch (issue 31),
 
 and four operations:
 
@@ -32,6 +38,8 @@ import abc
 import importlib
 import json
 import os
+from collections.abc import Collection
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, ClassVar, Mapping
 
@@ -63,10 +71,39 @@ class GeneratorConfig(BaseModel):
         return resolve_config(cls, overrides, f"{where}: {cls.__qualname__} field")
 
 
+@dataclass(frozen=True)
+class MethodCard:
+    """What a table's plan reads of a method, importable without torch: the method's
+    ``Config`` and how its jobs are made.  Its Generator subclass takes every field from it
+    (``card = ...``, :meth:`Generator.__init_subclass__`)."""
+
+    method_id: str
+    Config: type[GeneratorConfig]
+    #: the method whose training job this one shares, with the config less ``inference_fields``
+    #: (NEURAL MARIONETTE trains as MarioNet); None: its own
+    trains_as: str | None = None
+    #: Config fields that change only sampling, not what is trained (left out of the training
+    #: key and the resume guard)
+    inference_fields: Collection[str] = ()
+    #: a composite's components, name -> method: it trains nothing of its own; each component
+    #: trains as that method does for any other row
+    components: Mapping[str, str] = field(default_factory=dict)
+    #: whether the method trains and samples with a network on the job's device (a table gives
+    #: its train and generate jobs the profile's / ``--device``'s device only then); False for
+    #: a method that computes on the CPU whatever the device (``nearest_clip``: retrieval)
+    uses_device: bool = True
+
+    @property
+    def module(self) -> str:
+        """The module that defines (and registers) the method's Generator."""
+        return GENERATOR_MODULES[self.method_id]
+
+
 # ---------------------------------------------------------------------------------------------
 # registry: method_id -> class (modules imported lazily so `repro --help` stays fast)
 
-#: method_id -> module that defines (and registers) it.  Add a line per new method.
+#: method_id -> module that defines (and registers) it, beside its torch-free ``<module>_config``
+#: (its Config and :class:`MethodCard`).  Add a line per new method.
 GENERATOR_MODULES: dict[str, str] = {
     "marionet": "repro.models.marionet",
     "neural_marionette": "repro.models.neural_marionette",
@@ -83,6 +120,7 @@ GENERATOR_MODULES: dict[str, str] = {
     "odmo": "repro.models.odmo",
 }
 _REGISTRY: dict[str, type["Generator"]] = {}
+_CARDS: dict[str, MethodCard] = {}
 
 
 def register(cls: type["Generator"]) -> type["Generator"]:
@@ -90,16 +128,41 @@ def register(cls: type["Generator"]) -> type["Generator"]:
     return add_to_registry(_REGISTRY, cls, "method_id", "method_id")
 
 
+def register_card(card: MethodCard) -> MethodCard:
+    """Make ``card`` findable by :func:`method_card` (in the method's ``<module>_config``)."""
+    return add_to_registry(_CARDS, card, "method_id", "method card")
+
+
 def generator_class(method_id: str) -> type["Generator"]:
     """The Generator subclass registered under ``method_id`` (ConfigError if unknown)."""
     if method_id not in _REGISTRY and method_id in GENERATOR_MODULES:
         importlib.import_module(GENERATOR_MODULES[method_id])
+    return _registered(_REGISTRY, method_id)
+
+
+def method_card(method_id: str) -> MethodCard:
+    """The :class:`MethodCard` of ``method_id`` (ConfigError if unknown), from the method's
+    ``<module>_config`` alone: the network module (and torch) is not imported."""
+    if method_id not in _CARDS and method_id in GENERATOR_MODULES:
+        name = f"{GENERATOR_MODULES[method_id]}_config"
+        try:
+            importlib.import_module(name)
+        except ModuleNotFoundError as e:
+            if e.name != name:
+                raise
+            raise ConfigError(f"method {method_id!r}: its card module {name} is missing (each "
+                              f"method's Config and MethodCard live there, torch-free)") from None
+    return _registered(_CARDS, method_id)
+
+
+def _registered(registry: dict, method_id: str):
+    """``registry[method_id]``, else a ConfigError naming the nearest known method."""
     try:
-        return _REGISTRY[method_id]
+        return registry[method_id]
     except KeyError:
         import difflib
 
-        known = sorted(set(GENERATOR_MODULES) | set(_REGISTRY))
+        known = sorted(set(GENERATOR_MODULES) | set(registry))
         near = difflib.get_close_matches(method_id, known, n=1)
         hint = f"; did you mean {near[0]!r}?" if near else f"; known: {', '.join(known)}"
         raise ConfigError(f"unknown method {method_id!r}{hint}") from None
@@ -111,14 +174,25 @@ def generator_class(method_id: str) -> type["Generator"]:
 class Generator(abc.ABC):
     """A trainable action-conditioned motion generator (see module docstring)."""
 
+    #: the method's card: ``method_id``, ``Config`` and the fields below are its
+    card: ClassVar[MethodCard]
     method_id: ClassVar[str]
     Config: ClassVar[type[GeneratorConfig]]
+    trains_as: ClassVar[str | None] = None
+    inference_fields: ClassVar[Collection[str]] = ()
+    components: ClassVar[Mapping[str, str]] = {}
+    uses_device: ClassVar[bool] = True
     #: the condition fields (``CONDITION_FIELDS``) this method reads
     uses: ClassVar[frozenset[str]] = frozenset({"label", "length"})
-    #: whether the method trains and samples with a network on the job's device (a table gives
-    #: its train and generate jobs the profile's / ``--device``'s device only then); False for
-    #: a method that computes on the CPU whatever the device (``nearest_clip``: retrieval)
-    uses_device: ClassVar[bool] = True
+
+    def __init_subclass__(cls, **kwargs):
+        """A subclass naming its ``card`` takes its method id, Config and job facts from it."""
+        super().__init_subclass__(**kwargs)
+        card = cls.__dict__.get("card")
+        if card is not None:
+            cls.method_id, cls.Config, cls.trains_as = card.method_id, card.Config, card.trains_as
+            cls.inference_fields, cls.components = card.inference_fields, card.components
+            cls.uses_device = card.uses_device
 
     def __init__(self, config: GeneratorConfig | Mapping[str, Any] | None, skeleton: Skeleton,
                  n_classes: int, fps: float):

@@ -53,13 +53,13 @@ from typing import Callable
 
 import torch
 import torch.nn.functional as F
-from pydantic import model_validator
 from torch import nn
 
 from repro.data.action_items import ActionItems, GeneratedItems, pad_last
-from repro.models.base import Generator, GeneratorConfig, epoch_batches, register
+from repro.models.base import Generator, epoch_batches, register
 from repro.models.baseline_io import (check_items, pack_poses, pose_joints, to_generated,
                                       unpack_poses)
+from repro.models.mann_config import MANN, MANNConfig
 from repro.motion.rotations import matrix_to_6d, sixd_to_matrix
 from repro.seeding import derive_seed
 from repro import kernels
@@ -68,46 +68,6 @@ from repro import kernels
 SGDR_PHASE_CAP = 0.9
 #: Standard deviations below this are replaced by 1 when normalising (constant features).
 STD_FLOOR = 1e-5
-
-
-class MANNConfig(GeneratorConfig):
-    """MANN hyper-parameters; defaults = Zhang et al. 2018 and the authors' code."""
-
-    n_experts: int = 8
-    hidden: int = 512                  # motion prediction network width
-    gating_hidden: int = 32            # gating network width
-    dropout: float = 0.3               # keep probability 0.7
-    # trajectory window (MANN/PFNN: 12 samples over 2 s around the frame)
-    traj_past: int = 6
-    traj_future: int = 6
-    traj_step: int = 5                 # frames between samples (1/6 s at 30 fps)
-    progress_input: bool = False       # add t/T to the input (not in MANN)
-    # training (authors' code: AdamWR)
-    batch_size: int = 32
-    epochs: int = 150
-    lr: float = 1e-4
-    weight_decay: float = 2.5e-3
-    restart_period: int = 10           # T_e, epochs
-    restart_mult: int = 2              # T_mult
-    sample_batch_size: int = 256
-
-    @model_validator(mode="after")
-    def _check(self):
-        for f in ("n_experts", "hidden", "gating_hidden", "traj_step", "batch_size", "epochs",
-                  "restart_period", "restart_mult", "sample_batch_size"):
-            if getattr(self, f) < 1:
-                raise ValueError(f"{f} must be >= 1")
-        if self.traj_past < 0 or self.traj_future < 1:
-            raise ValueError("traj_past must be >= 0 and traj_future >= 1 (the window holds t)")
-        if not 0.0 <= self.dropout < 1.0:
-            raise ValueError("dropout must lie in [0, 1)")
-        if self.lr <= 0 or self.weight_decay < 0:
-            raise ValueError("lr must be > 0 and weight_decay >= 0")
-        return self
-
-    def offsets(self) -> list[int]:
-        """Frame offsets of the trajectory samples around ``t``."""
-        return [self.traj_step * k for k in range(-self.traj_past, self.traj_future)]
 
 
 def sgdr_factor(epoch: int, batch: int, n_batches: int, period: int, mult: int) -> float:
@@ -276,8 +236,7 @@ class MANNFeatures:
 class MANN(Generator):
     """MANN behind the :class:`~repro.models.base.Generator` interface (module docstring)."""
 
-    method_id = "mann"
-    Config = MANNConfig
+    card = MANN
     uses = frozenset({"label", "length", "initial_motion", "trajectory"})
 
     def __init__(self, config, skeleton, n_classes: int, fps: float):

@@ -54,7 +54,6 @@ import json
 import os
 from collections.abc import Mapping
 from pathlib import Path
-from typing import ClassVar
 
 import torch
 from torch import nn
@@ -68,10 +67,11 @@ from repro.models.base import (
     SAVE_FORMAT,
     WEIGHTS_FILE,
     Generator,
-    GeneratorConfig,
     register,
 )
 from repro.models.baseline_io import unpack_poses
+from repro.models.multiact_baselines_config import (  # noqa: F401 (AlignConfig re-exported)
+    ACTOR_SSMCT, INTERPOLATION, AlignConfig)
 from repro.models.ssmct import interpolate_frames, join_pairs
 from repro.motion.motion import Motion
 from repro.motion.rotations import matrix_to_6d, sixd_to_matrix
@@ -81,18 +81,9 @@ from repro.seeding import derive_seed
 N_INIT = ItemsConfig().n_init
 
 
-class AlignConfig(GeneratorConfig):
-    """``align``: place ACTOR's action at the previous motion's last pose (module docstring)."""
-
-    align: bool = True
-
-
 class _Composite(Generator):
     """What both composites share: components, ACTOR placement, one step, save/load."""
 
-    Config = AlignConfig
-    components: ClassVar[dict[str, str]] = {}
-    inference_fields: ClassVar[tuple[str, ...]] = ("align",)
     item_kind = "pairs"
     uses = frozenset({"label", "length", "initial_motion"})
 
@@ -261,8 +252,7 @@ class _Composite(Generator):
 class ActorSSMCT(_Composite):
     """ACTOR + SSMCT (w. align / w. o. align): ACTOR's action, SSMCT's transition."""
 
-    method_id = "actor_ssmct"
-    components: ClassVar[dict[str, str]] = {"actor": "actor", "ssmct": "ssmct"}
+    card = ACTOR_SSMCT
 
     def _transition(self, prev, prev_lengths, action, l_t) -> Motion:
         return self._model("ssmct").inbetween(prev, prev_lengths, action, l_t)
@@ -272,8 +262,7 @@ class ActorSSMCT(_Composite):
 class Interpolation(_Composite):
     """ACTOR + Interpolation: ACTOR's action, slerp/linear transition."""
 
-    method_id = "interpolation"
-    components: ClassVar[dict[str, str]] = {"actor": "actor"}
+    card = INTERPOLATION
 
     def _transition(self, prev, prev_lengths, action, l_t) -> Motion:
         a = last_frames(prev, prev_lengths, 1).to(dtype=action.dtype)

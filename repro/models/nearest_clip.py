@@ -28,24 +28,17 @@ from pathlib import Path
 from typing import Callable
 
 import torch
-from pydantic import Field
 from torch import nn
 
 from repro.data.action_items import ActionItems, GeneratedItems, pad_last
 from repro.errors import ConfigError, DataError
-from repro.models.base import Generator, GeneratorConfig, register
+from repro.models.base import Generator, register
 from repro.models.baseline_io import check_matches_model
+from repro.models.nearest_clip_config import NEAREST_CLIP, NearestClipConfig  # noqa: F401
 from repro.motion.motion import Motion
 from repro.seeding import numpy_rng
 
 _BUFFERS = ("features", "labels", "lengths", "root", "rot6d", "n_init")
-
-
-class NearestClipConfig(GeneratorConfig):
-    """Retrieval settings (harness choices; docs/protocols.md)."""
-
-    match_frames: int | None = Field(
-        None, ge=1, description="last initial frames compared (None: all of them)")
 
 
 class NearestClipIndex(nn.Module):
@@ -94,10 +87,8 @@ def _match_features(items: ActionItems, frames: int | None) -> torch.Tensor:
 class NearestClip(Generator):
     """Harness reference retrieval (module docstring): NOT a paper method."""
 
-    method_id = "nearest_clip"
-    Config = NearestClipConfig
+    card = NEAREST_CLIP
     uses = frozenset({"label", "initial_motion", "length"})
-    uses_device = False  # retrieval on the CPU: its jobs carry no device (no GPU asked for)
 
     def __init__(self, config, skeleton, n_classes: int, fps: float):
         super().__init__(config, skeleton, n_classes, fps)

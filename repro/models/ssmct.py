@@ -80,17 +80,15 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
-from typing import Literal
 
 import torch
 import torch.nn.functional as F
-from pydantic import model_validator
 from torch import nn
 
 from repro.data.action_items import pad_last
 from repro.data.pairs import GeneratedPairs, PairItems, gather_frames, last_frames
 from repro.errors import ConfigError, DataError
-from repro.models.base import Generator, GeneratorConfig, register
+from repro.models.base import Generator, register
 from repro.models.baseline_io import (
     check_matches_model,
     length_mask,
@@ -100,6 +98,7 @@ from repro.models.baseline_io import (
     unpack_poses,
 )
 from repro.models.layers import TransformerEncoder
+from repro.models.ssmct_config import SSMCT, SSMCTConfig
 from repro.motion.canon import canonicalize_with, face_front, uncanonicalize
 from repro.motion.motion import Motion
 from repro.motion.resample import slerp
@@ -115,47 +114,6 @@ from repro import kernels
 
 #: keyframe-embedding kinds
 KNOWN, MISSING, PADDING = 0, 1, 2
-
-
-class SSMCTConfig(GeneratorConfig):
-    """SSMCT hyper-parameters (module docstring says where each default comes from)."""
-
-    d_model: int = 256
-    layers: int = 8
-    heads: int = 8
-    ff_size: int = 512
-    dropout: float = 0.1
-    activation: Literal["relu", "gelu"] = "gelu"
-    kernel_size: int = 3
-    context_frames: int = 10
-    target_frames: int = 2
-    max_window: int = 160          # learned positions: context + l_t + target must fit
-    lambda_pose: float = 1.0
-    lambda_pos: float = 1.0
-    batch_size: int = 128
-    epochs: int = 1200
-    lr: float = 1e-4
-    weight_decay: float = 1e-5
-    sample_batch_size: int = 256
-
-    @model_validator(mode="after")
-    def _check(self):
-        if self.d_model % self.heads:
-            raise ValueError(f"d_model {self.d_model} is not divisible by heads {self.heads}")
-        for f in ("d_model", "layers", "heads", "ff_size", "context_frames", "target_frames",
-                  "batch_size", "epochs", "sample_batch_size"):
-            if getattr(self, f) < 1:
-                raise ValueError(f"{f} must be >= 1")
-        if self.kernel_size < 1 or self.kernel_size % 2 == 0:
-            raise ValueError("kernel_size must be odd and >= 1")
-        if self.max_window < self.context_frames + self.target_frames + 1:
-            raise ValueError("max_window must hold the context, one missing frame and the "
-                             "target frames")
-        if not 0.0 <= self.dropout < 1.0:
-            raise ValueError("dropout must lie in [0, 1)")
-        if self.lambda_pose < 0 or self.lambda_pos < 0:
-            raise ValueError("loss weights must be >= 0")
-        return self
 
 
 class SSMCTNet(nn.Module):
@@ -255,8 +213,7 @@ def _check_pairs(gen, items) -> None:
 class SSMCT(Generator):
     """SSMCT behind the :class:`~repro.models.base.Generator` interface (module docstring)."""
 
-    method_id = "ssmct"
-    Config = SSMCTConfig
+    card = SSMCT
     item_kind = "pairs"
     #: the previous motion and the lengths (and, as an in-betweener, the next action's first
     #: ``target_frames`` frames, which are no condition field of single-action items)

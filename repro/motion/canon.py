@@ -33,8 +33,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Sequence
 
-import torch
-
 from repro.motion.heading import (HEADING_AXES, BodyFrame, body_frame, chain_global_rotmat,
                                   heading_angle, yaw_matrix)
 from repro.motion.motion import Motion
@@ -102,6 +100,8 @@ class CanonParams:
 
 
 def _anchors(anchor: int | Sequence[int] | torch.Tensor, B: int, T: int) -> torch.Tensor:
+    import torch
+
     a = torch.as_tensor(anchor, dtype=torch.long).reshape(-1)
     if a.numel() == 1:
         a = a.expand(B).clone()
@@ -114,6 +114,8 @@ def _anchors(anchor: int | Sequence[int] | torch.Tensor, B: int, T: int) -> torc
 
 def _at(x: torch.Tensor, anchors: torch.Tensor) -> torch.Tensor:
     """x[b, anchors[b]] for x (B, T, ...)."""
+    import torch
+
     return x[torch.arange(x.shape[0], device=x.device), anchors.to(x.device)]
 
 
@@ -129,6 +131,8 @@ def _origin(root_at_anchor: torch.Tensor, translation: str) -> torch.Tensor:
 def _apply(motion: Motion, G: torch.Tensor, pre: torch.Tensor | None = None,
            post: torch.Tensor | None = None) -> Motion:
     """root → G·(root − pre) + post; joint 0's 6D columns → G·M; other joints unchanged."""
+    import torch
+
     B = motion.batch_size
     root = motion.root if pre is None else motion.root - pre[:, None]
     root = (G[:, None] @ root.unsqueeze(-1)).squeeze(-1)
@@ -221,6 +225,8 @@ def zero_canon(motion: Motion, anchor: int | Sequence[int] | torch.Tensor = -1, 
     for the raw stand-in BVH rest pose).  ``target="upright"``: the anchor's body frame is
     aligned with the world (up → +Y, forward → +Z), a skeleton-independent reading.
     """
+    import torch
+
     if target not in ("rest", "upright"):
         raise ValueError(f"target must be 'rest' or 'upright', got {target!r}")
     body = _body(motion, body)
@@ -240,6 +246,8 @@ def zero_canon(motion: Motion, anchor: int | Sequence[int] | torch.Tensor = -1, 
 def root_to_origin(motion: Motion, frame: int = 0) -> tuple[Motion, CanonParams]:
     """ODMO / Action2Motion: subtract the root position of ``frame`` (default the first) from
     the whole motion; no rotation (protocols.md §3.1: "rotate2xz" rotates nothing)."""
+    import torch
+
     a = _anchors(frame, motion.batch_size, motion.n_frames)
     o = _at(motion.root, a)
     G = torch.eye(3, dtype=motion.dtype, device=motion.root.device).expand(motion.batch_size, 3, 3)
@@ -251,6 +259,8 @@ def positions_root_to_origin(joints: torch.Tensor, frame: int = 0, root_joint: i
                              ) -> tuple[torch.Tensor, CanonParams]:
     """The same on joint positions (B, T, J, 3) (ODMO's xyz representation): every joint
     minus joint ``root_joint`` at ``frame``.  Undo with ``params.invert_points``."""
+    import torch
+
     p = torch.as_tensor(joints)
     if p.dim() != 4 or p.shape[-1] != 3:
         raise ValueError(f"joints must be (B, T, J, 3), got {tuple(p.shape)}")

@@ -35,7 +35,6 @@ import re
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
 from repro.motion.skeleton import Skeleton
 
@@ -218,6 +217,8 @@ def heading_angle(rotmats: torch.Tensor, axis, reference=HEADING_AXES["forward"]
     given in; ``reference``: a horizontal world direction (default +Z).  Differentiable except
     where the projection vanishes (axis vertical), where the angle is undefined (atan2(0, 0) = 0).
     """
+    import torch
+
     R = torch.as_tensor(rotmats)
     a = torch.as_tensor(np.array(axis, dtype=np.float64), dtype=R.dtype, device=R.device)
     v = R @ a
@@ -230,6 +231,8 @@ def heading_angle(rotmats: torch.Tensor, axis, reference=HEADING_AXES["forward"]
 def body_heading(skeleton: Skeleton, rotmats: torch.Tensor, *, axis: str = "forward",
                  body: BodyFrame | None = None) -> torch.Tensor:
     """Heading (...,) of the body from local rotations (..., J, 3, 3); 0 = facing +Z."""
+    import torch
+
     body = body or body_frame(skeleton)
     G = chain_global_rotmat(skeleton, torch.as_tensor(rotmats), body.pelvis)
     return heading_angle(G, body.axis(axis), HEADING_AXES[axis])
@@ -242,6 +245,8 @@ def motion_heading(motion, *, axis: str = "forward", body: BodyFrame | None = No
 
 def yaw_matrix(angle) -> torch.Tensor:
     """Rotation matrices (..., 3, 3) about world +Y by ``angle`` (radians; (...,) tensor)."""
+    import torch
+
     a = torch.as_tensor(angle)
     if not a.is_floating_point():
         a = a.to(torch.get_default_dtype())
@@ -254,6 +259,8 @@ def yaw_matrix(angle) -> torch.Tensor:
 
 def rotate_about_y(points, angle) -> torch.Tensor:
     """Rotate points (..., 3) about world +Y by ``angle`` (broadcastable to ``points[..., 0]``)."""
+    import torch
+
     p = torch.as_tensor(points)
     R = yaw_matrix(torch.as_tensor(angle, dtype=p.dtype, device=p.device))
     return torch.einsum("...ij,...j->...i", R, p)
@@ -263,6 +270,8 @@ def positions_heading(joints, left: int, right: int) -> torch.Tensor:
     """Heading (...,) from joint positions (..., J, 3) alone: the hip line ``p[left] -
     p[right]`` measured against +X (the ``lateral`` convention).  For xyz-only motions (ODMO,
     Action2Motion) and evaluators that remove heading."""
+    import torch
+
     p = torch.as_tensor(joints)
     v = p[..., left, :] - p[..., right, :]
     return torch.atan2(-v[..., 2], v[..., 0])

@@ -18,7 +18,6 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
-import torch
 
 from repro.keys import content_key
 from repro.motion.rotations import matrix_to_6d, matrix_to_quat, quat_to_6d, sixd_to_matrix
@@ -35,6 +34,8 @@ class Motion:
     fps: float
 
     def __post_init__(self) -> None:
+        import torch
+
         root = torch.as_tensor(self.root)
         rot6d = torch.as_tensor(self.rot6d)
         J = self.skeleton.n_joints
@@ -80,11 +81,15 @@ class Motion:
     @classmethod
     def from_rotmats(cls, root, rotmats, skeleton: Skeleton, fps: float) -> "Motion":
         """From local rotation matrices (B, T, J, 3, 3)."""
+        import torch
+
         return cls(torch.as_tensor(root), matrix_to_6d(torch.as_tensor(rotmats)), skeleton, fps)
 
     @classmethod
     def from_quaternions(cls, root, quats, skeleton: Skeleton, fps: float) -> "Motion":
         """From local ``xyzw`` quaternions (B, T, J, 4)."""
+        import torch
+
         return cls(torch.as_tensor(root), quat_to_6d(torch.as_tensor(quats)), skeleton, fps)
 
     def replace(self, **changes) -> "Motion":
@@ -132,6 +137,8 @@ class Motion:
     def _cat(motions: Sequence["Motion"], dim: int, same: str, what: str) -> "Motion":
         """Concatenate along ``dim``; every motion's skeleton, fps and ``same`` (an attribute)
         must be the first's, else a ValueError ``{what}``."""
+        import torch
+
         first = motions[0]
         for m in motions[1:]:
             if m.skeleton != first.skeleton or m.fps != first.fps \
@@ -155,14 +162,17 @@ class Motion:
     @classmethod
     def from_clipset(cls, clipset, indices: Sequence[int], start: int | Sequence[int] = 0,
                      length: int | None = None, *, pad: bool = False,
-                     dtype: torch.dtype = torch.float32) -> "Motion":
+                     dtype: torch.dtype | None = None) -> "Motion":
         """Frames ``start : start + length`` of clips ``indices`` of a ClipSet, as one batch.
 
         ``start``: one frame index for all clips or one per clip.  ``length=None``: to each
         clip's end (all must then give the same length).  ``pad=True`` repeats a clip's last
         frame past its end (ODMO/Action2Motion padding); otherwise running past the end is an
-        error.
+        error.  ``dtype``: None is float32.
         """
+        import torch
+
+        dtype = torch.float32 if dtype is None else dtype
         idx = np.asarray(indices, dtype=np.int64).reshape(-1)
         if idx.size == 0:
             raise ValueError("from_clipset needs at least one clip index")
@@ -196,6 +206,8 @@ class Motion:
     def to_clip_arrays(self, lengths: Sequence[int] | None = None) -> dict[str, np.ndarray]:
         """Packed ClipSet arrays (float32 ``rotations`` xyzw, ``root``, ``joints``; int64
         ``starts``, ``lengths``); ``lengths`` trims each motion to its valid frames."""
+        import torch
+
         T = self.n_frames
         lens = np.full(self.batch_size, T, dtype=np.int64) if lengths is None else \
             np.asarray(lengths, dtype=np.int64).reshape(self.batch_size)

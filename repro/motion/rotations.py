@@ -30,7 +30,6 @@ import functools
 from typing import Callable
 
 import numpy as np
-import torch
 
 __all__ = [
     "matrix_to_6d", "sixd_to_matrix", "quat_to_matrix", "matrix_to_quat", "axis_angle_to_matrix",
@@ -55,6 +54,8 @@ def _numpy_compatible(fn: Callable) -> Callable:
 
     @functools.wraps(fn)
     def wrapper(x, *args, **kwargs):
+        import torch
+
         if isinstance(x, np.ndarray):
             t = torch.from_numpy(np.ascontiguousarray(x))
             if not t.is_floating_point():
@@ -200,7 +201,11 @@ def convert(x, src: str, dst: str, *, order: str | None = None, intrinsic: bool 
 
 
 def random_rotmats(shape: tuple[int, ...] | int, generator: torch.Generator,
-                   dtype: torch.dtype = torch.float32) -> torch.Tensor:
-    """Uniformly random rotation matrices (``shape + (3, 3)``) from an explicit generator."""
+                   dtype: torch.dtype | None = None) -> torch.Tensor:
+    """Uniformly random rotation matrices (``shape + (3, 3)``) from an explicit generator
+    (``dtype``: None is float32)."""
+    import torch
+
+    dtype = torch.float32 if dtype is None else dtype
     size = (shape,) if isinstance(shape, int) else tuple(shape)
     return _roma().random_rotmat(size, dtype=dtype, generator=generator)

@@ -172,6 +172,13 @@ class ItemProtocol(Protocol):
         so that no scored test clip was seen by the recogniser."""
         return self.item_source().split_clipset(clipset)
 
+    def split_view(self, clipset):
+        """What a plan reads of :meth:`split_clipset` (fingerprint, labels, split, label names),
+        without building its clips where that costs work (the item source's ``split_view``; a
+        source without one gives its ``split_clipset``, which has the same fields)."""
+        src = self.item_source()
+        return getattr(src, "split_view", src.split_clipset)(clipset)
+
     def train_items(self, clipset):
         """The items a generator is trained on (the item source's training split)."""
         return self.item_source().train_items(clipset)

@@ -56,7 +56,6 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-import torch
 from pydantic import Field
 
 from repro.errors import ConfigError, DataError
@@ -108,6 +107,8 @@ class LatentSamples:
 
 def latent_codes(generator, pool, batch) -> np.ndarray:
     """(N, D) latent means of the windows ``batch`` of ``pool`` under ``generator``."""
+    import torch
+
     if hasattr(generator, "latent_codes"):  # ODMO: the LMP encoder on xyz windows
         out = generator.latent_codes(batch.joints)
     elif hasattr(generator, "net") and hasattr(generator.net, "encode"):  # ACTOR

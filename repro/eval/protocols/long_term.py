@@ -61,7 +61,6 @@ from dataclasses import dataclass
 from typing import ClassVar, Literal
 
 import numpy as np
-import torch
 from pydantic import Field
 
 from repro.data.clipset import TEST
@@ -227,6 +226,8 @@ class LongTerm(MultiActProtocol):
 
     def test_items(self, clipset) -> LongTermItems:
         """The fixed test plan (module docstring)."""
+        import torch
+
         p = self.params
         src = self.item_source()
         pairs = src.pairs(clipset, TEST)
@@ -282,6 +283,8 @@ class LongTerm(MultiActProtocol):
                  need: Iterable[str] | None = None, models: Mapping | None = None,
                  row_config: Mapping | None = None) -> MultiActSamples:
         """Replicate ``replicate``: every sequence generated step by step (module docstring)."""
+        import torch
+
         s0 = self.replicate_seed(seed, replicate)
         S, N = items.shape
         pairs = items.pairs
@@ -339,6 +342,8 @@ class LongTerm(MultiActProtocol):
         return self._stack(motions, l_ts, items, anchors, transitions=pairgen)
 
     def _stack(self, motions, l_ts, items: LongTermItems, anchors, *, transitions: bool):
+        import torch
+
         S, N = items.shape
         W = max(m.n_frames for m in motions)
         lt = torch.stack(l_ts, 1)                       # (S, N)

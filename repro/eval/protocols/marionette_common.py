@@ -24,7 +24,6 @@ from pathlib import Path
 from typing import ClassVar, Literal, Mapping
 
 import numpy as np
-import torch
 from pydantic import Field
 
 from repro.data.contexts import ActionSource
@@ -81,6 +80,8 @@ def evaluation_clips(joints, lengths, window: int, mode: str) -> tuple[np.ndarra
     (``s = 0``), both padded by repeating the last valid frame when ``L < W``; ``"whole"``
     (the padded action as it is).  Metres in, metres out.
     """
+    import torch
+
     j = joints.detach().cpu().numpy() if isinstance(joints, torch.Tensor) else np.asarray(joints)
     lens = lengths.detach().cpu().numpy() if isinstance(lengths, torch.Tensor) else np.asarray(lengths)
     lens = lens.astype(np.int64).reshape(-1)

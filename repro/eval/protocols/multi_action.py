@@ -54,7 +54,6 @@ from pathlib import Path
 from typing import Iterable, Literal
 
 import numpy as np
-import torch
 from pydantic import Field
 
 from repro.data.action_items import ActionItems, GeneratedItems, condition_items
@@ -136,6 +135,8 @@ class MultiActionSamples(GeneratedItems):
 
 def _gather_frames(x: torch.Tensor, start: torch.Tensor, count: int) -> torch.Tensor:
     """(N, count, ...) frames ``start_n .. start_n + count − 1`` of each row of ``x`` (N, T, ...)."""
+    import torch
+
     t = start[:, None] + torch.arange(count)[None, :]
     return x[torch.arange(x.shape[0])[:, None], t]
 
@@ -247,6 +248,8 @@ class MultiAction(MarionetteProtocol):
     def _sampler(self, generator, clipset, evaluator, evaluator_factory=None):
         """``fn(cond_items, seed) -> (GeneratedItems, revised mask)``: the pure generative
         pipeline calls the generator as it is."""
+        import torch
+
         if self.params.pipeline != "pure_generative":
             raise ConfigError(f"protocol {self.id!r}: pipeline {self.params.pipeline!r} belongs "
                               "to the ss_ar protocol")
@@ -258,6 +261,8 @@ class MultiAction(MarionetteProtocol):
         return fn
 
     def _chain(self, sampler, items: ActionItems, ts: TestSet, *, seed: int) -> MultiActionSamples:
+        import torch
+
         p = self.params
         S, L = ts.actions.shape
         K = p.initial_frames
@@ -326,6 +331,8 @@ class MultiAction(MarionetteProtocol):
                 clipset=None, reference=None) -> dict[str, float]:
         """One replicate's values: the averages from ``score_from_action`` on and, per action
         index x (1-based), ``metric@x`` (module docstring)."""
+        import torch
+
         from repro.metrics.transitions import pose_gap, velocity_gap
 
         if clipset is None:
@@ -377,11 +384,15 @@ class MultiAction(MarionetteProtocol):
     def _scored_rows(self, x, S: int, L: int):
         """The rows of a sequence-major (S·L, ...) array that the averages count (actions from
         ``score_from_action`` on)."""
+        import torch
+
         f = self.params.score_from_action - 1
         keep = (np.arange(S)[:, None] * L + np.arange(f, L)[None, :]).reshape(-1)
         return x[torch.from_numpy(keep)] if isinstance(x, torch.Tensor) else x[keep]
 
     def _scored(self, g: GeneratedItems, S: int, L: int) -> GeneratedItems:
+        import torch
+
         keep = self._scored_rows(torch.arange(S * L), S, L)
         return GeneratedItems(g.motion.select(keep), g.lengths[keep], g.labels[keep])
 
@@ -451,6 +462,8 @@ class MultiAction(MarionetteProtocol):
     def save_generated(self, generated: MultiActionSamples, path: str | Path) -> Path:
         """The samples as npz (:func:`repro.eval.protocols.marionette_common.write_samples`)
         plus ``revised``; ``meta`` adds the sequence shape and the test set's key."""
+        import torch
+
         rev = generated.revised if generated.revised is not None else \
             torch.zeros(len(generated), dtype=torch.bool)
         return write_samples(path, self.id, SAVE_FORMAT, generated,
@@ -461,6 +474,8 @@ class MultiAction(MarionetteProtocol):
 
     def load_generated(self, path: str | Path) -> MultiActionSamples:
         """Read a file :meth:`save_generated` wrote (DataError naming it when it is not one)."""
+        import torch
+
         f = read_samples(path, self.id, SAVE_FORMAT)
         g = f.motion_set()
         meta = f.meta
@@ -478,6 +493,8 @@ class MultiAction(MarionetteProtocol):
 
 def _pad_to(x: torch.Tensor, T: int) -> torch.Tensor:
     """Repeat the last frame (dim 1) up to ``T`` frames."""
+    import torch
+
     if x.shape[1] >= T:
         return x[:, :T]
     return torch.cat([x, x[:, -1:].expand(-1, T - x.shape[1], *x.shape[2:])], dim=1)

@@ -58,7 +58,6 @@ from pathlib import Path
 from typing import Any, ClassVar, Literal
 
 import numpy as np
-import torch
 from pydantic import Field
 
 from repro.data.pairs import PairItems, gather_frames
@@ -161,6 +160,8 @@ class MultiActSamples:
     items_key: str = ""
 
     def __post_init__(self) -> None:
+        import torch
+
         N = self.motion.batch_size
         for name in ("l_t", "l_c", "labels"):
             t = torch.as_tensor(getattr(self, name), dtype=torch.long).reshape(-1)
@@ -182,9 +183,13 @@ class MultiActSamples:
 
     def transition(self) -> tuple[Motion, torch.Tensor]:
         """``T̂`` (N, max(l_t, 1)) left-aligned, and ``l_t``."""
+        import torch
+
         return gather_frames(self.motion, torch.zeros_like(self.l_t), self.l_t.clamp(min=1)), self.l_t
 
     def select(self, index) -> MultiActSamples:
+        import torch
+
         idx = torch.as_tensor(np.asarray(index), dtype=torch.long).reshape(-1)
         return MultiActSamples(self.motion.select(idx), self.l_t[idx], self.l_c[idx],
                                self.labels[idx], self.anchor.select(idx), self.transitions,
@@ -211,6 +216,8 @@ def save_samples(protocol_id: str, samples: MultiActSamples, path: str | Path) -
 
 def load_samples(protocol_id: str, path: str | Path) -> MultiActSamples:
     """Read a file :func:`save_samples` wrote (DataError naming it when it is not one)."""
+    import torch
+
     from repro.eval.sample_files import load_samples as _load
 
     meta, data, skeleton = _load(path, protocol=protocol_id, fmt=SAVE_FORMAT)
@@ -335,6 +342,8 @@ class MultiActProtocol(ItemProtocol):
     def clips(self, joints: torch.Tensor, lengths: torch.Tensor, evaluator):
         """What the recogniser sees of each segment (``eval_clip``, module docstring):
         joints (N, W, J, 3) numpy and valid lengths (N,)."""
+        import torch
+
         from repro.eval.protocols.single_action import evaluation_clips
 
         lengths = torch.as_tensor(lengths, dtype=torch.long).clamp(min=1)
@@ -348,6 +357,8 @@ class MultiActProtocol(ItemProtocol):
 
     def encode(self, evaluator, segment: Motion, lengths, anchor: Motion, seed: int):
         """(features (N, 30), logits (N, C)) of ``segment`` scored at ``anchor``."""
+        import torch
+
         lengths = torch.as_tensor(lengths, dtype=torch.long)
         if segment.batch_size == 0:
             d = getattr(evaluator.settings, "feature_dim", 30)
@@ -427,6 +438,8 @@ class MultiActProtocol(ItemProtocol):
         """One replicate's samples for ``items`` (seeded by ``seed``): every generator sees
         :func:`blind` ``(items)`` only; ``S_p`` is the item's or ACTOR's (:meth:`prev_source`);
         the scoring anchor is the last frame of the ``S_p`` used."""
+        import torch
+
         who = f"generator {generator_name(generator)}"
         cond = blind(items)
         source = self.prev_source(row_config, generator)

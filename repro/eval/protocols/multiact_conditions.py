@@ -31,8 +31,6 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-import torch
-
 from repro.data.pairs import GeneratedPairs, PairItems, gather_frames, last_frames
 from repro.errors import ConfigError, DataError
 from repro.motion.motion import Motion
@@ -46,6 +44,8 @@ def blind(items: PairItems) -> PairItems:
     """``items`` as a generator may see them: ``S_p``, labels and lengths kept; every frame of
     ``T`` and ``S_c`` replaced by ``S_p``'s last frame; ``segment_index`` and ``clip_index``
     dropped (module docstring)."""
+    import torch
+
     motion = gather_frames(items.motion, torch.zeros_like(items.l_p), items.l_p,
                            items.motion.n_frames)
     return PairItems(motion, items.l_p.clone(), items.l_t.clone(), items.l_c.clone(),
@@ -56,6 +56,8 @@ def blind(items: PairItems) -> PairItems:
 def with_prev(items: PairItems, prev: Motion) -> PairItems:
     """Blinded ``items`` whose ``S_p`` is ``prev`` (N, ≥ max l_p; ``l_p`` valid frames each),
     e.g. a generated previous motion."""
+    import torch
+
     width = max(items.motion.n_frames, int((items.l_p + items.l_t + items.l_c).max()))
     motion = gather_frames(prev.to(dtype=items.motion.dtype), torch.zeros_like(items.l_p),
                            items.l_p, width)
@@ -66,6 +68,8 @@ def with_prev(items: PairItems, prev: Motion) -> PairItems:
 
 def anchor_frames(motion: Motion, lengths: torch.Tensor) -> Motion:
     """(N, 1): the last valid frame of each row (``lengths`` valid frames)."""
+    import torch
+
     return last_frames(motion, torch.as_tensor(lengths, dtype=torch.long), 1)
 
 
@@ -89,11 +93,12 @@ def is_composite(generator) -> bool:
 
 
 def method_is_composite(method_id: str) -> bool:
-    """Whether ``method_id`` is a composite (ACTOR + X) method: its class has ``components``."""
+    """Whether ``method_id`` is a composite (ACTOR + X) method: its card has ``components``
+    (read without the method's network, so a plan imports no torch)."""
     try:
-        from repro.models.base import generator_class
+        from repro.models.base import method_card
 
-        return bool(getattr(generator_class(method_id), "components", None))
+        return bool(method_card(method_id).components)
     except Exception:  # noqa: BLE001 - not registered yet: fall back to the known ids
         return method_id in COMPOSITES
 
@@ -101,6 +106,8 @@ def method_is_composite(method_id: str) -> bool:
 def actor_action_items(actor, labels, lengths, anchor: Motion, label_names, *, n_init: int):
     """ActionItems for a label-only generator: ``labels``, ``lengths``; placed at ``anchor``
     (N, 1) (its pose repeated ``n_init`` times as the initial motion; placement only)."""
+    import torch
+
     from repro.data.action_items import condition_items
 
     N = anchor.batch_size
@@ -148,6 +155,8 @@ def actor_motion(generator, models: Mapping[str, Any] | None, labels, lengths, t
     MultiAct ("Comparison with state-of-the-art methods", Tab. 3) does not say where ACTOR's
     previous motion sits; the alternative, origin placement (ACTOR's own frame, the origin
     facing +Z, as before issue 26), would leave "w.o. align" only ``S_p``'s own travel."""
+    import torch
+
     labels = torch.as_tensor(labels, dtype=torch.long)
     lengths = torch.as_tensor(lengths, dtype=torch.long)
     if is_composite(generator):
@@ -174,6 +183,8 @@ def generator_name(generator) -> str:
 
 
 def check_generated_pairs(out, l_t, l_c, n: int, who: str) -> GeneratedPairs:
+    import torch
+
     if not isinstance(out, GeneratedPairs):
         raise DataError(f"{who}: expected GeneratedPairs, got {type(out).__name__}")
     if len(out) != n:

@@ -51,7 +51,6 @@ from pathlib import Path
 from typing import ClassVar, Literal, Mapping
 
 import numpy as np
-import torch
 from pydantic import Field
 
 from repro.data.clip_draws import per_class_clips
@@ -228,6 +227,8 @@ class OdmoProtocol(ItemProtocol):
     def sample_joints(self, generator, labels, *, seed: int, pool, row_config=None) -> np.ndarray:
         """(N, window, J, 3) joint positions from ``generator`` for ``labels`` (module
         docstring: window-trained methods, or label-only items for ACTOR / A2M)."""
+        import torch
+
         T = int(self.params.window)
         labels = np.asarray(labels, dtype=np.int64)
         if hasattr(generator, "sample_windows"):

@@ -56,7 +56,6 @@ from pathlib import Path
 from typing import Iterable, Literal
 
 import numpy as np
-import torch
 from pydantic import Field
 
 from repro.data.action_items import ActionItems, GeneratedItems
@@ -177,6 +176,8 @@ class SingleAction(MarionetteProtocol):
     def condition_items(self, items: ActionItems) -> ActionItems:
         """What a generator is conditioned on: ``items`` (``trajectory = "none"``: with the
         trajectory zeroed, i.e. "not specified" in the paper's sense)."""
+        import torch
+
         if self.params.trajectory == "none":
             return dataclasses.replace(items, trajectory=torch.zeros_like(items.trajectory))
         return items
@@ -210,6 +211,8 @@ class SingleAction(MarionetteProtocol):
 
     @staticmethod
     def _check_generated(gen, items: ActionItems, who: str) -> None:
+        import torch
+
         if not isinstance(gen, GeneratedItems):
             raise DataError(f"{who}: expected GeneratedItems, got {type(gen).__name__}")
         if len(gen) != len(items):
@@ -319,6 +322,8 @@ class SingleAction(MarionetteProtocol):
         """Δ_Traj (metres): the generated root, brought into each item's normalised frame, vs
         the input trajectory (``traj_plane = "xz"``) or the real root (``"xyz"``), averaged
         over valid frames of the items ``traj_items`` selects; None when none is selected."""
+        import torch
+
         from repro.metrics.trajectory import trajectory_error
 
         p = self.params

@@ -36,7 +36,6 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-import torch
 from pydantic import Field
 
 from repro.errors import ConfigError
@@ -114,6 +113,8 @@ class SsAr(MultiAction):
         return evaluator_factory(*request)
 
     def _sampler(self, generator, clipset, evaluator, evaluator_factory=None):
+        import torch
+
         if not hasattr(generator, "set_shadow_bank"):
             return _pure(generator)  # the pure generative pipeline for a plain generator
         if self.params.pipeline != "neural_marionette":
@@ -149,6 +150,8 @@ class SsAr(MultiAction):
 
 
 def _pure(generator):
+    import torch
+
     def fn(cond, seed):
         return generator.sample(cond, seed=seed), torch.zeros(len(cond), dtype=torch.bool)
 

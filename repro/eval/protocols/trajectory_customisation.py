@@ -26,7 +26,6 @@ can be customised; any other method is an error naming it.  There is no Real row
 from __future__ import annotations
 
 import numpy as np
-import torch
 from pydantic import Field
 
 from repro.errors import DataError
@@ -62,6 +61,8 @@ class TrajectoryCustomisation(OdmoProtocol):
 
     def generate(self, generator, ctx: OdmoContext, *, seed: int, replicate: int, need=None,
                  models=None, row_config=None) -> OdmoSamples:
+        import torch
+
         p = self.params
         who = getattr(generator, "method_id", type(generator).__name__)
         if not (hasattr(generator, "bank") and hasattr(generator, "decode")):
