@@ -57,7 +57,6 @@ from repro.models.baseline_io import (check_items, item_noise, length_mask, pack
 from repro.models.layers import TransformerDecoder, TransformerEncoder, sinusoidal_encoding
 from repro.seeding import derive_seed
 from repro.train.loop import to_device
-from repro import kernels
 
 
 class ACTORNet(nn.Module):
@@ -156,11 +155,8 @@ class ACTOR(Generator):
         """AdamW (lr 1e-4), batch 20, through the one training loop; weights from ``seed``.
         ``val_items``: the same loss terms on held-out items enter each epoch's history
         (``val_*``)."""
-        cfg = self.config
-        return self._fit_items(
-            train_items, check_items,
-            lambda params: kernels.adamw(params, lr=cfg.lr, weight_decay=cfg.weight_decay),
-            seed=seed, ckpt_dir=ckpt_dir, on_epoch=on_epoch, val_items=val_items)
+        return self._fit_adamw(train_items, check_items, seed=seed, ckpt_dir=ckpt_dir,
+                               on_epoch=on_epoch, val_items=val_items)
 
     # -- inference -----------------------------------------------------------------------------
     @torch.no_grad()

@@ -275,6 +275,17 @@ class Generator(abc.ABC):
         return self._fit_batches(train_items, data, opt, seed=seed, ckpt_dir=ckpt_dir,
                                  on_epoch=on_epoch, val_items=val_items, val_data=val_data)
 
+    def _fit_adamw(self, train_items, check, *, seed: int, ckpt_dir, on_epoch, val_items=None):
+        """:meth:`_fit_items` with AdamW at the config's ``lr`` and ``weight_decay``
+        (:func:`repro.kernels.adamw`)."""
+        from repro import kernels
+
+        cfg = self.config
+        return self._fit_items(
+            train_items, check,
+            lambda params: kernels.adamw(params, lr=cfg.lr, weight_decay=cfg.weight_decay),
+            seed=seed, ckpt_dir=ckpt_dir, on_epoch=on_epoch, val_items=val_items)
+
     def _fit_batches(self, train_items, data: dict, optimizer, *, seed: int, ckpt_dir,
                      on_epoch, val_items=None, val_data: dict | None = None, **train_kwargs):
         """The tail every item-batched ``fit`` shares: shuffled batches of ``config.batch_size``

@@ -436,17 +436,24 @@ class MarioNet(Generator):
             raise ValueError(f"first_feature must be ({N}, {cfg.d_model})")
         eps = torch.randn(N, cfg.d_model, generator=torch_generator(seed, self.noise_id, "z"))
         out = torch.zeros(N, Tmax, net.pose_dim)
-        for s in range(0, N, cfg.sample_batch_size):
-            idx = torch.arange(s, min(N, s + cfg.sample_batch_size))
-            b = to_device(self._crop(data, idx), self.device)
-            mu, logvar, tag, _ = net.encode(b["init"], b["labels"], b["next_labels"])
-            z = mu if use_mean else mu + torch.exp(0.5 * logvar) * eps[idx].to(mu.device)
-            ctrl = net.controls(z, tag, b["trajectory"], b["lengths"])
+        for idx, b, mu, ctrl in self._controlled_batches(data, N, eps, use_mean):
             ff = None if first_feature is None else first_feature[idx].to(mu.device)
             gen = net.generate(b["init"][:, -1], ctrl, b["lengths"], use_cache=use_cache,
                                first_feature=ff)
             out[idx, :gen.shape[1]] = gen.to(out.device)
         return out
+
+    def _controlled_batches(self, data: dict, N: int, eps: torch.Tensor, use_mean: bool):
+        """Batches of ``sample_batch_size`` items on the device, each with its latent mean
+        ``mu`` and the decoder's control sequence from ``z`` (the mean, or drawn with ``eps``):
+        yields (idx, batch, mu, controls); what sampling and the teacher-forced pass share."""
+        net, size = self.net, self.config.sample_batch_size
+        for s in range(0, N, size):
+            idx = torch.arange(s, min(N, s + size))
+            b = to_device(self._crop(data, idx), self.device)
+            mu, logvar, tag, _ = net.encode(b["init"], b["labels"], b["next_labels"])
+            z = mu if use_mean else mu + torch.exp(0.5 * logvar) * eps[idx].to(mu.device)
+            yield idx, b, mu, net.controls(z, tag, b["trajectory"], b["lengths"])
 
     def finish(self, items: ActionItems, poses: torch.Tensor) -> GeneratedItems:
         """Raw poses (N, T_max, 6J+3) in the items' frames → world-frame GeneratedItems
@@ -471,12 +478,7 @@ class MarioNet(Generator):
         N, Tmax = len(items), int(items.lengths.max())
         eps = torch.randn(N, cfg.d_model, generator=torch_generator(seed, self.method_id, "z"))
         out = torch.zeros(N, Tmax, net.pose_dim)
-        for s in range(0, N, cfg.sample_batch_size):
-            idx = torch.arange(s, min(N, s + cfg.sample_batch_size))
-            b = to_device(self._crop(data, idx), self.device)
-            mu, logvar, tag, _ = net.encode(b["init"], b["labels"], b["next_labels"])
-            z = mu if use_mean else mu + torch.exp(0.5 * logvar) * eps[idx].to(mu.device)
-            ctrl = net.controls(z, tag, b["trajectory"], b["lengths"])
+        for idx, b, mu, ctrl in self._controlled_batches(data, N, eps, use_mean):
             gt_in = torch.cat([b["init"][:, -1:], b["target"][:, :-1]], dim=1)
             out[idx, :ctrl.shape[1]] = net.decode(gt_in, ctrl, b["lengths"]).to(out.device)
         return self._finish(items, out)

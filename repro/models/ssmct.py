@@ -110,7 +110,6 @@ from repro.motion.rotations import (
 )
 from repro.seeding import derive_seed
 from repro.train.loop import to_device
-from repro import kernels
 
 #: keyframe-embedding kinds
 KNOWN, MISSING, PADDING = 0, 1, 2
@@ -286,11 +285,8 @@ class SSMCT(Generator):
             val_items: PairItems | None = None):
         """AdamW through the one training loop; weights from ``seed``; ``val_items`` give the
         ``val_*`` curve only."""
-        cfg = self.config
-        return self._fit_items(
-            train_items, _check_pairs,
-            lambda params: kernels.adamw(params, lr=cfg.lr, weight_decay=cfg.weight_decay),
-            seed=seed, ckpt_dir=ckpt_dir, on_epoch=on_epoch, val_items=val_items)
+        return self._fit_adamw(train_items, _check_pairs, seed=seed, ckpt_dir=ckpt_dir,
+                               on_epoch=on_epoch, val_items=val_items)
 
     # -- inference -----------------------------------------------------------------------------
     @torch.no_grad()
