@@ -250,7 +250,6 @@ def cmd_list(args) -> int:
 @_on_device(computes=False)
 def cmd_plan(args) -> int:
     from repro.engine.runner import plan_table
-
     from repro.engine.table_plan import parse_seeds
 
     entries = plan_table(args.table, scale=args.scale, dataset=args.dataset, why=args.why,
