@@ -1,4 +1,4 @@
-# repro: one command per table.  SCALE ?= quick | medium | paper
+# repro: one command per table.  SCALE ?= quick | medium | paper | converged
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
@@ -38,7 +38,7 @@ test-all:
 
 # --- tables ----------------------------------------------------------------------------------
 # `make table3` = Neural Marionette Table 3 (the brief's main job); every spec also has its own
-# target: marionette-table1 ... odmo-tableS1.  SCALE=quick|medium|paper, DATASET=... overrides.
+# target: marionette-table1 ... odmo-tableS1.  SCALE=quick|medium|paper|converged, DATASET=... overrides.
 MARIONETTE := table1 table2 table3 table4 table5 fig8 fig10
 MULTIACT := table1 table2 table3 tableA tableB fig6
 ODMO := table1 table2 table3 table4 tableS1

@@ -110,7 +110,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
 
     from repro.data.registry import load_clipset
-    from repro.engine.evidence import config_epochs
+    from repro.train.epochs import config_epochs
     from repro.engine.job import topo_order
     from repro.engine.table_plan import build_plan
     from repro.errors import ReproError

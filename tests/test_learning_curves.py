@@ -217,7 +217,7 @@ def _ctx(tmp_path, config, seed=0):
 
 @pytest.mark.parametrize("method,fraction", [("marionet", 0.05), ("marionet", 0.0),
                                              ("nearest_clip", 0.05)])
-def test_train_method_writes_schema_2(method, fraction, clips, items, tmp_path, monkeypatch):
+def test_train_method_writes_schema_3(method, fraction, clips, items, tmp_path, monkeypatch):
     from repro.engine import steps
     from repro.models.base import generator_class
 
@@ -231,7 +231,13 @@ def test_train_method_writes_schema_2(method, fraction, clips, items, tmp_path, 
     ctx = _ctx(tmp_path, cfg)
     steps.train_method(ctx)
     rec = json.loads((ctx.out / "training.json").read_text())
-    assert rec["schema"] == 2
+    assert rec["schema"] == 3 and rec["until"] == "epochs"
+    if method == "marionet":  # measured on every training (issue 32): 2 epochs never fire it
+        assert rec["convergence"]["converged"] is False
+        assert rec["convergence"]["stopped_by"] == "epochs"
+        assert rec["convergence"]["rule"]["metric"] == "val_mpjpe"
+    else:
+        assert rec["convergence"] is None
     n_val = 3 if (fraction and method == "marionet") else 0
     assert rec["n_validation"] == n_val and rec["n_train"] == len(items) - n_val
     assert rec["steps"] == sum(h["batches"] for h in rec["history"])
@@ -314,3 +320,25 @@ def test_runs_show_prints_learning_curves(capsys):
     assert main(["runs", "show", rec.run_id, "--json"]) == 0
     shown = json.loads(capsys.readouterr().out)
     assert shown["trainings"][0]["training"]["steps"] == 120
+
+
+def test_train_method_until_plateau_stops_and_records(clips, items, tmp_path, monkeypatch):
+    from repro.engine import steps
+    from repro.models.base import generator_class
+
+    monkeypatch.setattr(steps, "clipset", lambda name: clips)
+    monkeypatch.setattr(steps, "training_items", lambda cfg, c, kind="actions": items)
+    mcfg = generator_class("marionet").Config.resolve(
+        {**TINY_MARIONET, "epochs": 6}).model_dump(mode="json")
+    # a rule that fires as soon as it can: any improvement under 99 % over a 1-epoch window
+    sched = {"until": "plateau", "tolerance": 0.99, "window_share": 0.0, "min_window": 1,
+             "smooth": 1, "max_minutes": None}
+    cfg = {"dataset": "synthetic", "items": {}, "method": "marionet", "method_config": mcfg,
+           "validation": {"fraction": 0.05, "seed": 0}, "schedule": sched}
+    ctx = _ctx(tmp_path, cfg)
+    steps.train_method(ctx)
+    rec = json.loads((ctx.out / "training.json").read_text())
+    assert rec["until"] == "plateau" and rec["epochs"] == 6
+    conv = rec["convergence"]
+    assert conv["converged"] and conv["stopped_by"] == "plateau" and conv["converged_epoch"] == 1
+    assert len(rec["history"]) == 2 and conv["rule"]["tolerance"] == 0.99

@@ -294,7 +294,7 @@ def test_fidelity_meets_issue_26(seqs):
     assert share.shape == (20, C) and ov["chains"] >= 500
     assert share[1:].min() >= 0.3 / C and share[1:].max() <= 3 / C
     assert all(v["share"] <= 0.05 for v in f["truncated_actions"].values())
-    assert set(f["truncated_actions"]) == {"quick", "medium", "paper"}
+    assert set(f["truncated_actions"]) == {"quick", "medium", "paper", "converged"}
     j = f["junction"]
     assert j["above_p99_share"] <= 0.10 and j["foot_slide_junction"] <= 0.2
     assert j["above_p99_share_seam"] <= 0.10          # the seam itself, where P^ini ends

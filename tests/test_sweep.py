@@ -78,3 +78,20 @@ def test_sweep_cli_refuses_bad_axes_before_running(tmp_path, monkeypatch):
     r = subprocess.run([sys.executable, "-m", "cli.main", "sweep", "marionette/table1"],
                        capture_output=True, text=True, env=env)
     assert r.returncode == 2 and "one of the arguments" in r.stderr
+
+
+def test_plateau_point_parses_last_and_resolves_a_plateau_schedule():
+    from repro.engine.sweep import PLATEAU, _ordered
+    from repro.specs.scales import resolve_scale, until_override
+
+    assert parse_factors("plateau,1,2") == (1.0, 2.0, PLATEAU)
+    assert _ordered([PLATEAU, 2.0, 0.5]) == [0.5, 2.0, PLATEAU]
+    for bad in ("plateau,plateau", "plateau,x"):
+        with pytest.raises(ConfigError, match="--budget"):
+            parse_factors(bad)
+    assert resolve_scale("quick").schedule is None
+    with until_override(PLATEAU):
+        sched = resolve_scale("quick").schedule
+    assert sched["until"] == "plateau" and sched["tolerance"] == 0.01
+    assert resolve_scale("quick").schedule is None
+    assert resolve_scale("converged").schedule["max_minutes"] == 25.0

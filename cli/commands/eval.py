@@ -18,7 +18,7 @@ def register(subparsers) -> None:
 
     def common(sp):
         sp.add_argument("--dataset", required=True, help="data set (bandai2, bandai2-mini, ...)")
-        sp.add_argument("--scale", default=None, choices=("quick", "medium", "paper"),
+        sp.add_argument("--scale", default=None, choices=("quick", "medium", "paper", "converged"),
                         help="scale profile (default: quick for bandai2-mini, else medium)")
         sp.add_argument("--kind", default="a2m_gru", choices=KINDS, help="recogniser (default a2m_gru)")
         sp.add_argument("--heading", default=None, choices=("raw", "yaw_augment", "remove"),

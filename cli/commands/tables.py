@@ -9,7 +9,7 @@ import sys
 
 from cli.commands import gate_options, int_at_least, run_ref
 
-SCALES = ("quick", "medium", "paper")
+SCALES = ("quick", "medium", "paper", "converged")
 
 
 def output_format(text: str) -> str:
@@ -172,7 +172,9 @@ def _register_sweep(sub) -> None:
     _common(p)
     axis = p.add_mutually_exclusive_group(required=True)
     axis.add_argument("--budget", default=None, metavar="FACTORS",
-                      help="epoch multipliers, e.g. 0.5,1,2,4")
+                      help="epoch multipliers, e.g. 0.5,1,2,4; add 'plateau' for a point "
+                      "trained until each model's validation curve stops improving (the largest "
+                      "factor's epochs as the cap)")
     axis.add_argument("--evaluator-seeds", default=None, metavar="SEEDS",
                       help="evaluator training seeds, e.g. 0-2 or 0,1,2")
     p.add_argument("--jobs", type=int_at_least(1), default=1, help="jobs run side by side")

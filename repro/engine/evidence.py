@@ -30,6 +30,17 @@ condition that fails,
   different training seed could reverse the ordering).
 
 "supported" and "inconclusive" are kept as they are; every verdict carries its evidence line.
+
+**Convergence** (issue 32).  Where every training of every trained row a claim involves was
+trained until the convergence rule fired (a profile with ``until = "plateau"``, e.g.
+``converged``; :mod:`repro.train.plateau`), the budget and model-size conditions above no longer
+decide: the comparison is between models that stopped improving on this data.  "supported" and
+"contradicted" then read "supported at convergence on the stand-in" (or "on <name> (own
+data)"), with "(sampling variance only)" appended when the intervals hold one training per row
+(no ``--retrain``).  A fixed-epoch training records whether the rule fired in its
+``training.json`` (``repro runs show``) but never counts as converged here, so the verdicts of
+the fixed-budget profiles (and their regression baselines) keep their meaning.  The evidence's
+``converged`` is None for a claim without a trained row.
 """
 
 from __future__ import annotations
@@ -37,11 +48,16 @@ from __future__ import annotations
 import math
 from functools import lru_cache
 
+from repro.train.epochs import config_epochs
+
 NOT_REPRODUCED_BUDGET = "not reproduced at this budget"
 NOT_REPRODUCED_UNKNOWN = "not reproduced (paper budget unknown)"
 NOT_REPRODUCED_REDUCED = "not reproduced (reduced model)"
 NOT_REPRODUCED_SAMPLING = "not reproduced (sampling variance only)"
 CONTRADICTED = "contradicted"
+SUPPORTED = "supported"
+#: the words a verdict gains when every training it compares reached its plateau (issue 32)
+AT_CONVERGENCE = "at convergence"
 PAPER_SCALE = "paper"
 
 #: where each method's "paper schedule" comes from (the ``paper`` profile, tables/scales.toml);
@@ -70,19 +86,6 @@ SCHEDULES: dict[str, dict] = {
 #: so a schedule keeps its shape (MarioNet's scheduled sampling, MANN's warm restarts)
 EPOCH_FIELDS = ("epochs", "ss_activate_epoch", "ss_accomplish_epoch", "restart_period",
                 "vae_epochs", "dlow_epochs", "tf_decay_epochs")
-#: methods trained in stages, each with its own epoch count (DLow-Gen: the VAE, then DLow)
-STAGE_EPOCH_FIELDS = ("vae_epochs", "dlow_epochs")
-
-
-def config_epochs(config: dict) -> int | None:
-    """The epochs a method config trains: ``epochs``, or the sum of its stages' epochs
-    (:data:`STAGE_EPOCH_FIELDS`); None for a method that does not train by epochs."""
-    if config.get("epochs") is not None:
-        return int(config["epochs"])
-    stages = [config[k] for k in STAGE_EPOCH_FIELDS if isinstance(config.get(k), int)]
-    return sum(stages) if stages else None
-
-
 @lru_cache(maxsize=None)
 def _paper_scale():
     from repro.specs.scales import resolve_scale
@@ -197,10 +200,19 @@ def budgets_text(budgets, short: bool = False) -> str:
 
 
 def claim_evidence(*, rows: list[str], budgets: dict[str, dict | None], retrain: bool,
-                   replicates: int, evaluators: list[str], scale: str | None = None) -> dict:
+                   replicates: int, evaluators: list[str], scale: str | None = None,
+                   convergence: dict[str, dict] | None = None, dataset: str | None = None
+                   ) -> dict:
     """The evidence of a claim over ``rows``: variance, budgets of the trained rows involved
-    (``budgets``: row id -> :func:`training_budget` or None), evaluators; with its text."""
+    (``budgets``: row id -> :func:`training_budget` or None), whether their trainings reached
+    their plateau (``convergence``: :func:`repro.engine.tables.row_convergence`), evaluators;
+    with its text.  ``converged``: None without a trained row, else whether every training of
+    every trained row involved was trained until the convergence rule fired (issue 32)."""
     trained = {r: budgets[r] for r in rows if budgets.get(r) is not None}
+    conv = {r: (convergence or {}).get(r) for r in sorted(trained)}
+    converged = (None if not trained else all(
+        c is not None and c["trainings"] > 0 and c["converged"] == c["trainings"]
+        for c in conv.values()))
     fractions = [b["fraction"] for b in trained.values() if b.get("fraction") is not None]
     unknown = sorted(r for r, b in trained.items() if b.get("fraction") is None)
     if retrain:
@@ -216,19 +228,66 @@ def claim_evidence(*, rows: list[str], budgets: dict[str, dict | None], retrain:
                      + (" (*: schedule assumed, the paper states none)" if assumed else ""))
     else:
         parts.append("budget: no trained row involved")
+    if trained:
+        parts.append(convergence_text(conv))
     if evaluators:
         parts.append("evaluator: " + "; ".join(evaluators))
     return {"variance": "training" if retrain else "sampling", "replicates": replicates,
             "budgets": {r: b for r, b in trained.items()},
             "min_budget": min(fractions) if fractions else None, "unknown_budget": unknown,
-            "scale": scale,
+            "scale": scale, "converged": converged, "convergence": conv,
+            "where": _where(dataset),
             "trained_rows": sorted(trained), "evaluators": evaluators,
             "text": "; ".join(parts)}
 
 
+def convergence_text(conv: dict[str, dict | None]) -> str:
+    """``convergence: every training at its plateau (marionet 34 epochs, ...; rule: ...)``, or
+    which rows were not trained to their plateau and why: a fixed number of epochs (a profile
+    without ``until = "plateau"``), the epoch cap or the time cap."""
+    done = {r: c for r, c in conv.items()
+            if c is not None and c["trainings"] and c["converged"] == c["trainings"]}
+    if conv and len(done) == len(conv):
+        crit = next((c["criterion"] for c in done.values() if c.get("criterion")), None)
+        runs = ", ".join(f"{r} {'/'.join(str(e) for e in c['epochs'])} epochs"
+                         for r, c in done.items())
+        return f"convergence: every training at its plateau ({runs}; rule: {crit})"
+    words = {"epochs": "the epoch cap", "time": "the time cap"}
+    why = []
+    for r, c in conv.items():
+        if r in done:
+            continue
+        if c is None:
+            why.append(f"{r} (no training record)")
+        elif not c.get("plateau_runs"):
+            why.append(f"{r} (a fixed number of epochs)")
+        else:
+            stops = sorted({words.get(x, str(x)) for x in c["stopped_by"] if x != "plateau"})
+            why.append(f"{r} ({c['converged']} of {c['trainings']} at the plateau; "
+                       f"the others stopped by {', '.join(stops) or 'nothing recorded'})")
+    return "convergence: not every training reached its plateau: " + "; ".join(why)
+
+
+def _where(dataset: str | None) -> str:
+    """"the stand-in", "<name> (own data)" or a paper data set's name (as evaluators say)."""
+    from repro.specs import names
+
+    if dataset is None:
+        return "the stand-in"
+    kind = names.dataset_kind(dataset)
+    return {names.STANDIN: "the stand-in", names.OWN: f"{dataset} (own data)"}.get(kind, dataset)
+
+
 def qualified_verdict(verdict: str, evidence: dict) -> str:
     """The verdict the evidence allows (module docstring): a posterior "contradicted" below
-    the paper's budget, or without training-seed variance, is "not reproduced", qualified."""
+    the paper's budget, or without training-seed variance, is "not reproduced", qualified;
+    where every training involved reached its plateau, "supported"/"contradicted" read "at
+    convergence on the stand-in" (issue 32), with "(sampling variance only)" without
+    ``--retrain``."""
+    if evidence.get("converged") and verdict in (SUPPORTED, CONTRADICTED):
+        where = evidence.get("where") or "the stand-in"
+        tail = "" if evidence.get("variance") == "training" else " (sampling variance only)"
+        return f"{verdict} {AT_CONVERGENCE} on {where}{tail}"
     if verdict != CONTRADICTED or not evidence.get("trained_rows"):
         return verdict  # (a claim among untrained rows is decided by the data alone)
     mb = evidence.get("min_budget")

@@ -28,8 +28,9 @@ GENERATED = "generated.npz"
 VALUES = "values.json"
 TRAINING = "training.json"
 #: ``training.json`` format: 2 added ``epochs``, ``batch_size``, ``n_train``, ``n_validation``,
-#: ``validation_fraction``, ``steps`` and per-epoch ``batches`` / ``val_*`` in ``history``
-TRAINING_SCHEMA = 2
+#: ``validation_fraction``, ``steps`` and per-epoch ``batches`` / ``val_*`` in ``history``;
+#: 3 added ``until`` ("epochs" or "plateau") and ``convergence`` (:func:`convergence_of`)
+TRAINING_SCHEMA = 3
 
 
 @lru_cache(maxsize=4)
@@ -112,7 +113,7 @@ def job_device(ctx):
 
 def train_method(ctx) -> None:
     from repro.models.base import generator_class
-    from repro.train.loop import use_device
+    from repro.train.loop import use_device, use_stopping
     from repro.train.validation import holdout
 
     cfg = ctx.config
@@ -121,7 +122,7 @@ def train_method(ctx) -> None:
     cls = generator_class(cfg["method"])
     items = training_items(cfg, clips, getattr(cls, "item_kind", "actions"))
     gen = cls(cfg["method_config"], clips.skeleton, clips.n_classes, items.fps)
-    from repro.engine.evidence import config_epochs
+    from repro.train.epochs import config_epochs
 
     epochs = config_epochs(cfg["method_config"])
     fraction, val_seed = validation_settings(cfg, ctx.seed)
@@ -136,7 +137,8 @@ def train_method(ctx) -> None:
         ctx.progress(epoch + 1, epochs, msg)
 
     kw = {} if val_items is None else {"val_items": val_items}
-    with use_device(job_device(ctx)):
+    rule = gen.plateau_rule().with_settings(cfg.get("schedule"))
+    with use_device(job_device(ctx)), use_stopping(stopping_of(cfg.get("schedule"), rule)):
         result = gen.fit(train_items, seed=ctx.seed, ckpt_dir=ctx.scratch, on_epoch=on_epoch,
                          **kw)
     gen.save(ctx.out)
@@ -149,7 +151,38 @@ def train_method(ctx) -> None:
          "batch_size": cfg["method_config"].get("batch_size"),
          "n_train": len(train_items), "n_validation": 0 if val_items is None else len(val_items),
          "validation_fraction": fraction,
-         "steps": int(sum(int(h.get("batches", 0)) for h in history))}, sort_keys=True))
+         "steps": int(sum(int(h.get("batches", 0)) for h in history)),
+         "until": (cfg.get("schedule") or {}).get("until", "epochs"),
+         "convergence": None if epochs is None else convergence_of(
+             history, rule, getattr(result, "stopped_by", None))}, sort_keys=True))
+
+
+def stopping_of(schedule: dict | None, rule):
+    """The loop's :class:`~repro.train.loop.Stopping` for a train job's ``schedule`` (the
+    profile's ``until`` and ``plateau`` settings): None for a fixed number of epochs."""
+    from repro.train.loop import Stopping
+
+    if not schedule or schedule.get("until", "epochs") != "plateau":
+        return None
+    minutes = schedule.get("max_minutes")
+    return Stopping(rule=rule, max_seconds=None if minutes is None else 60.0 * float(minutes))
+
+
+def convergence_of(history: list[dict], rule, stopped_by: str | None) -> dict:
+    """``training.json``'s ``convergence`` (:func:`repro.train.plateau.convergence_record`);
+    a training in stages (DLow-Gen: the VAE, then DLow; records carry ``stage``) converged
+    when every stage did, each read on its own epochs (``stage_epoch``)."""
+    from repro.train.plateau import convergence_record
+
+    stages = list(dict.fromkeys(h.get("stage") for h in history if isinstance(h, dict)))
+    if len(stages) <= 1 or None in stages:
+        return convergence_record(history, rule, stopped_by)
+    per = {st: convergence_record([h for h in history if h.get("stage") == st], rule)
+           for st in stages}
+    out = convergence_record([], rule, stopped_by)
+    out.update(converged=all(r["converged"] for r in per.values()),
+               converged_epoch=None, stages=per)
+    return out
 
 
 def _replicate_inputs(ctx):

@@ -9,7 +9,11 @@ Two axes:
   verdicts (the sampler's, before the budget qualifies them) along the factors are classed
   **stable** (one verdict throughout), **converging** (the verdict changes once and keeps its
   last value at the largest budgets, e.g. inconclusive → supported) or **flipping** (it
-  changes more than once).
+  changes more than once).  A ``plateau`` point (``--budget 1,2,4,plateau``; issue 32) trains
+  every method until its convergence rule fires (:mod:`repro.train.plateau`, the profile's
+  ``[plateau]`` settings) with the largest factor's epochs as the cap, so it costs at most that
+  point's training; it comes last on the axis, and its verdicts read "at convergence" where
+  every training involved reached its plateau.
 - ``evaluator_seed``: the same trained models, scored by evaluators trained with other seeds
   (the protocol's evaluator architecture and data; only its seed differs).  On the
   single-action tables the samples are the same too; on the multi-action ones the evaluator
@@ -33,21 +37,33 @@ from typing import Any
 
 SWEEP_SCHEMA = 1
 AXES = ("budget", "evaluator_seed")
+#: the budget axis's point that trains until the plateau (after every factor)
+PLATEAU = "plateau"
 
 
-def parse_factors(text: str) -> tuple[float, ...]:
-    """``"0.5,1,2,4"`` → (0.5, 1.0, 2.0, 4.0): distinct, positive, at most 12."""
+def parse_factors(text: str) -> tuple:
+    """``"0.5,1,2,4"`` → (0.5, 1.0, 2.0, 4.0): distinct, positive, at most 12; the word
+    ``plateau`` adds the plateau point (module docstring), last."""
     from repro.errors import ConfigError
 
     shown = text if len(text) <= 40 else text[:37] + "..."
+    words = [x.strip() for x in text.split(",") if x.strip()]
+    plateau = words.count(PLATEAU)
     try:
-        out = tuple(float(x) for x in text.split(",") if x.strip())
+        out = tuple(float(x) for x in words if x != PLATEAU)
     except ValueError:
-        raise ConfigError(f"--budget {shown!r}: give factors as '0.5,1,2,4'") from None
-    if not out or len(out) > 12 or len(set(out)) != len(out) or \
-            not all(math.isfinite(x) and x > 0 for x in out):
-        raise ConfigError(f"--budget {shown!r}: 1 to 12 distinct positive factors")
-    return out
+        raise ConfigError(f"--budget {shown!r}: give factors as '0.5,1,2,4' (and 'plateau' "
+                          "for a point trained until the plateau)") from None
+    if plateau > 1 or not (out or plateau) or len(out) + plateau > 12 or \
+            len(set(out)) != len(out) or not all(math.isfinite(x) and x > 0 for x in out):
+        raise ConfigError(f"--budget {shown!r}: 1 to 12 distinct positive factors "
+                          "(or 'plateau' once)")
+    return out + ((PLATEAU,) if plateau else ())
+
+
+def _ordered(points: list) -> list:
+    """The axis in order: numbers ascending, the plateau point last."""
+    return sorted(p for p in points if p != PLATEAU) + [p for p in points if p == PLATEAU]
 
 
 def classify_budget(verdicts: list[str]) -> str:
@@ -68,17 +84,23 @@ def sweep_table(name: str, *, axis: str, points: list, scale: str = "quick",
     :func:`repro.engine.runner.run_tables` (each point's run records its gate)."""
     from repro.engine.runner import run_table
     from repro.errors import ConfigError
+    from repro.specs.scales import until_override
 
     if axis not in AXES:
         raise ConfigError(f"sweep axis must be one of {', '.join(AXES)}, got {axis!r}")
-    points = sorted(points)
+    points = _ordered(points)
+    cap = max([float(p) for p in points if p != PLATEAU] or [1.0])
     runs = []
     for pt in points:
-        kw = {"budget": float(pt)} if axis == "budget" else {"evaluator_seed": int(pt)}
-        plan, summary, run_id = run_table(name, scale=scale, dataset=dataset, jobs=jobs,
-                                          progress=progress, seeds=seeds, retrain=retrain,
-                                          lines=lines, gate_margin=gate_margin,
-                                          no_gate=no_gate, **kw)
+        if axis != "budget":
+            kw = {"evaluator_seed": int(pt)}
+        else:
+            kw = {"budget": cap if pt == PLATEAU else float(pt)}
+        with until_override(PLATEAU if pt == PLATEAU else None):
+            plan, summary, run_id = run_table(name, scale=scale, dataset=dataset, jobs=jobs,
+                                              progress=progress, seeds=seeds, retrain=retrain,
+                                              lines=lines, gate_margin=gate_margin,
+                                              no_gate=no_gate, **kw)
         runs.append((pt, plan, summary, run_id))
     record = build_record(axis, runs)
     write_record(record)
@@ -157,7 +179,9 @@ def _fmt(x) -> str:
     return f"{x:.2e}" if x != 0 and (abs(x) >= 1e4 or abs(x) < 1e-3) else f"{x:.3f}"
 
 
-def _point_label(axis: str, p) -> str:
+def _point_label(axis: str, p, cap: float | None = None) -> str:
+    if p == PLATEAU:
+        return "plateau" + ("" if cap is None else f" (cap ×{cap:g})")
     return f"×{p:g}" if axis == "budget" else f"seed {p}"
 
 
@@ -165,7 +189,9 @@ def render_sweep(record: dict, fmt: str = "md") -> str:
     """The sweep as Markdown (``md``) or plain text (``term``): cells against the axis, then
     each claim's verdict per point with its class (module docstring), then the budgets."""
     axis = record["axis"]
-    heads = [_point_label(axis, p) for p in record["points"]]
+    nums = [p for p in record["points"] if p != PLATEAU]
+    cap = max(nums) if nums else 1.0
+    heads = [_point_label(axis, p, cap) for p in record["points"]]
     extra = ["range", "sd"] if axis == "evaluator_seed" else []
     lines = [f"{record['table']}: sweep over "
              f"{'training budget (epochs × factor)' if axis == 'budget' else 'evaluator seed'} "
@@ -205,5 +231,6 @@ def render_sweep(record: dict, fmt: str = "md") -> str:
         from repro.engine.evidence import budgets_text
 
         for p, b in zip(record["points"], record["budgets"]):
-            lines.append(f"- {_point_label(axis, p)}: " + (budgets_text((b or {}).values()) or "-"))
+            lines.append(f"- {_point_label(axis, p, cap)}: "
+                         + (budgets_text((b or {}).values()) or "-"))
     return "\n".join(lines) + "\n"

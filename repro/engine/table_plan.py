@@ -316,9 +316,11 @@ def _train_job(pl: _Planner, b: Band, seed: int, method: str, method_cfg: dict,
     """One training of ``method`` for band ``b``: keyed by how the training items are made,
     not by the protocol, so a model serves every table whose protocols make items the same
     way."""
+    schedule = getattr(pl.scale, "schedule", None)  # until a plateau (issue 32); else absent
     return pl.job("train", f"{STEPS}:train_method",
                   {"dataset": pl.dataset, "items": b.item_source, "method": method,
-                   "method_config": method_cfg, "validation": pl.validation},
+                   "method_config": method_cfg, "validation": pl.validation,
+                   **({"schedule": schedule} if schedule else {})},
                   seed=seed, fingerprints={"dataset": pl.fp}, device=pl.device_of(method),
                   label=f"{method}/train" + ("" if seed == pl.seeds[0] else f"/s{seed}"),
                   plugins=(module,))

@@ -130,6 +130,31 @@ def row_budgets(plan: TablePlan, trainings: list[dict] | None) -> dict[str, dict
     return out
 
 
+def row_convergence(trainings: list[dict] | None) -> dict[str, dict]:
+    """Per trained row, whether its trainings reached their plateau (issue 32): ``trainings``
+    (its training jobs), ``plateau_runs`` (how many were trained with ``until = "plateau"``),
+    ``converged`` (how many of those the convergence rule stopped), ``epochs`` (the epochs each ran),
+    ``stopped_by`` and ``criterion``.  A fixed-epoch training records whether the rule fired
+    in its own ``training.json`` but does not count here: the verdicts of fixed budgets keep
+    their meaning (:func:`repro.engine.evidence.qualified_verdict`)."""
+    out: dict[str, dict] = {}
+    for t in trainings or []:
+        rec = t.get("training") or {}
+        if rec.get("epochs") is None and not rec.get("history"):
+            continue  # nothing trained (a retrieval reference)
+        conv = rec.get("convergence") or {}
+        r = out.setdefault(t["row"], {"trainings": 0, "converged": 0, "plateau_runs": 0,
+                                      "epochs": [], "stopped_by": [],
+                                      "criterion": conv.get("criterion")})
+        until_plateau = rec.get("until") == "plateau"
+        r["trainings"] += 1
+        r["plateau_runs"] += int(until_plateau)
+        r["converged"] += int(until_plateau and bool(conv.get("converged")))
+        r["epochs"].append(len(rec.get("history") or []))
+        r["stopped_by"].append(conv.get("stopped_by"))
+    return out
+
+
 def _values_by_cell(values: list[dict]) -> dict[tuple[str, str], list[float]]:
     cells: dict[tuple[str, str], list[float]] = {}
     for v in sorted(values, key=lambda d: (d["row"], d["column"], d["replicate"])):
@@ -153,7 +178,8 @@ def summarise(plan: TablePlan, values: list[dict], trainings: list[dict] | None 
                       seed=derive_seed(0, spec.id, row_id, col))
         out_cells.setdefault(row_id, {})[col] = s.to_dict()
     budgets = row_budgets(plan, trainings)
-    claims = [with_evidence(plan, cl, _claim(spec, cl, cells, values), budgets)
+    convergence = row_convergence(trainings)
+    claims = [with_evidence(plan, cl, _claim(spec, cl, cells, values), budgets, convergence)
               for cl in spec.claims]
     out = {"schema": SUMMARY_SCHEMA, "table": spec.id, "cells": out_cells, "claims": claims,
            "budgets": budgets, "budget_factor": plan.budget,
@@ -166,10 +192,11 @@ def summarise(plan: TablePlan, values: list[dict], trainings: list[dict] | None 
     return out
 
 
-def with_evidence(plan: TablePlan, cl, claim: dict, budgets: dict) -> dict:
-    """``claim`` with its evidence (variance, budgets of the rows involved, evaluators of its
-    columns) and the verdict that evidence allows; the sampler's own verdict is kept as
-    ``posterior_verdict``."""
+def with_evidence(plan: TablePlan, cl, claim: dict, budgets: dict,
+                  convergence: dict | None = None) -> dict:
+    """``claim`` with its evidence (variance, budgets and convergence of the rows involved,
+    evaluators of its columns) and the verdict that evidence allows; the sampler's own verdict
+    is kept as ``posterior_verdict``."""
     from repro.engine.evidence import claim_evidence, evaluator_text, qualified_verdict
 
     evs = []
@@ -180,7 +207,8 @@ def with_evidence(plan: TablePlan, cl, claim: dict, budgets: dict) -> dict:
                 evs.append(t)
     ev = claim_evidence(rows=list(cl.involved_rows()), budgets=budgets, retrain=plan.retrain,
                         replicates=len(plan.seeds), evaluators=evs,
-                        scale=getattr(plan.scale, "name", None))
+                        scale=getattr(plan.scale, "name", None), convergence=convergence,
+                        dataset=plan.dataset)
     out = {**claim, "evidence": ev, "posterior_verdict": claim["verdict"]}
     out["verdict"] = qualified_verdict(claim["verdict"], ev)
     return out

@@ -124,6 +124,13 @@ SCALE_DEFAULTS: dict[str, dict] = {
                   "checkpoint_every": 10},
         "real": {"per_class": 100, "replicates": 10},
     },
+    # issue 32: the generators train to a plateau; the recognisers that score them as medium's
+    "converged": {
+        "transformer": {"d_model": 64, "heads": 4, "layers": 2, "ff": 128, "dropout": 0.1},
+        "train": {"epochs": 100, "windows_per_epoch": 2048, "batch_size": 64, "grad_clip": 1.0,
+                  "checkpoint_every": 10},
+        "real": {"per_class": 100, "replicates": 10},
+    },
     "paper": {
         "transformer": {"d_model": 128, "heads": 4, "layers": 4, "ff": 256, "dropout": 0.1},
         "train": {"epochs": 15000, "windows_per_epoch": 2048, "batch_size": 2048,

@@ -335,6 +335,15 @@ class Generator(abc.ABC):
 
         return validate
 
+    def plateau_rule(self):
+        """The convergence rule of this method's trainings (:mod:`repro.train.plateau`, issue 32):
+        by default the held-out ``val_loss``; a method whose loss changes meaning during
+        training overrides it with a quantity that keeps its meaning, or with the first epoch
+        from which the loss is comparable."""
+        from repro.train.plateau import PlateauRule
+
+        return PlateauRule()
+
     def describe(self) -> dict:
         """Everything that defines this generator before training (enters content keys)."""
         return {"method_id": self.method_id, "config": self.config.model_dump(mode="json"),

@@ -413,7 +413,7 @@ class DLowGen(Generator):
                     m.requires_grad_(True)
             history.extend(relabel(r) for r in res.history)
             results.append(res)
-            offset += epochs
+            offset += len(res.history)  # the stage's epochs (fewer when it stopped at a plateau)
         r_vae, r_dlow = results
         if r_vae.resumed_from is not None and r_vae.resumed_from < cfg.vae_epochs:
             resumed = r_vae.resumed_from
@@ -422,8 +422,10 @@ class DLowGen(Generator):
         else:
             resumed = None
         self.net.eval()
+        reasons = [r.stopped_by for r in results]
+        stopped_by = next((r for r in reasons if r != "plateau"), "plateau")
         return TrainResult(epochs=offset, resumed_from=resumed, history=history,
-                           seconds=sum(r.seconds for r in results))
+                           seconds=sum(r.seconds for r in results), stopped_by=stopped_by)
 
     # -- inference -----------------------------------------------------------------------------
     def flow_assignment(self, labels: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

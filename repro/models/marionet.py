@@ -380,6 +380,15 @@ class MarioNet(Generator):
                 "ss_active": f(active), "xi": f(xi if active else 0.0),
                 "lambda1": f(lam1), "lambda2": f(lam2)}
 
+    def plateau_rule(self):
+        """The convergence rule (issue 32) reads the held-out ``val_mpjpe`` (metres, of the
+        teacher-forced first pass), not ``val_loss``: scheduled sampling (supp. Sec. 3) moves
+        the loss's weights λ1/λ2 and its second pass's share ξ, so the loss changes meaning
+        between the activate and accomplish epochs while the first pass's error does not."""
+        from repro.train.plateau import PlateauRule
+
+        return PlateauRule(metric="val_mpjpe")
+
     def fit(self, train_items: ActionItems, *, seed: int, ckpt_dir: str | Path | None = None,
             on_epoch: Callable[[int, dict[str, float]], None] | None = None,
             val_items: ActionItems | None = None):

@@ -294,6 +294,14 @@ class ODMO(Generator):
                               f"have {items.window}")
 
     # -- training ------------------------------------------------------------------------------
+    def plateau_rule(self):
+        """The convergence rule (issue 32) reads ``val_loss`` only from the end of the
+        teacher-forcing decay (``tf_decay_epochs``): while the share of teacher-forced steps
+        falls, the loss measures a changing task (Sec. 4; the released code's schedule)."""
+        from repro.train.plateau import PlateauRule
+
+        return PlateauRule(start_epoch=int(self.config.tf_decay_epochs))
+
     def teacher_forcing(self, epoch: int) -> float:
         """tf at ``epoch``: linear from ``tf_start`` to ``tf_end`` over ``tf_decay_epochs``."""
         c = self.config

@@ -72,8 +72,10 @@ def summary_line(training: dict) -> str:
     steps = training.get("steps")
     if steps is None and history and all("batches" in h for h in history):
         steps = sum(int(h["batches"]) for h in history)
-    parts = [f"epochs {'—' if epochs is None else epochs}",
-             f"steps {'—' if steps is None else steps}"]
+    ran = (f"epochs {len(history)} of a cap of {epochs}"
+           if training.get("until") == "plateau" and epochs is not None
+           else f"epochs {'—' if epochs is None else epochs}")
+    parts = [ran, f"steps {'—' if steps is None else steps}"]
     if training.get("batch_size") is not None:
         parts.append(f"batch {training['batch_size']}")
     n_train, n_val = training.get("n_train"), training.get("n_validation")
@@ -87,6 +89,25 @@ def summary_line(training: dict) -> str:
     if training.get("resumed_from") is not None:
         parts.append(f"resumed at epoch {training['resumed_from']}")
     return ", ".join(parts)
+
+
+def convergence_line(training: dict) -> str | None:
+    """One line on the convergence rule (issue 32; ``training.json`` schema 3): whether and
+    when it fired, what it reads, and why the training stopped; None for an older record."""
+    conv = training.get("convergence")
+    if not isinstance(conv, dict):
+        return None
+    crit = conv.get("criterion") or "the plateau rule"
+    if conv.get("converged"):
+        e = conv.get("converged_epoch")
+        head = ("converged" if e is None else f"converged at epoch {e}") + f" ({crit})"
+    else:
+        head = f"not converged ({crit} never held)"
+    stop = {"plateau": "stopped by the rule", "epochs": "ran to its last epoch",
+            "time": "stopped by the time cap"}.get(conv.get("stopped_by"), None)
+    mode = ("trained until the plateau" if training.get("until") == "plateau"
+            else "a fixed number of epochs")
+    return f"{head}; {mode}" + ("" if stop is None else f", {stop}")
 
 
 def format_learning_curve(training: dict, *, max_rows: int = 25) -> list[str]:
@@ -106,7 +127,10 @@ def format_learning_curve(training: dict, *, max_rows: int = 25) -> list[str]:
         rows.append([str(h.get("epoch", i))] + [_num(h.get(k), fmt) for k, _, fmt in cols])
     widths = [max(len(r[j]) for r in [header] + rows) for j in range(len(header))]
     fmt_row = lambda r: "  ".join(c.rjust(w) for c, w in zip(r, widths))  # noqa: E731
-    return [fmt_row(header)] + [fmt_row(r) for r in rows] + [summary_line(training)]
+    conv = convergence_line(training)
+    return ([fmt_row(header)] + [fmt_row(r) for r in rows] + [summary_line(training)]
+            + ([] if conv is None else [conv]))
 
 
-__all__ = ["format_learning_curve", "summary_line", "curve_epochs", "COLUMNS"]
+__all__ = ["format_learning_curve", "convergence_line", "summary_line", "curve_epochs",
+           "COLUMNS"]

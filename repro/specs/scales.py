@@ -31,7 +31,7 @@ from contextlib import contextmanager
 from contextvars import ContextVar
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Union
+from typing import Any, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictFloat, StrictInt, StrictStr, \
     ValidationError, field_validator
@@ -42,7 +42,7 @@ from repro.paths import tables_root
 from repro.specs import names
 from repro.specs.schema import MAX_SPEC_VERSION, DatasetName, fps_problem
 
-SCALE_NAMES = ("quick", "medium", "paper")
+SCALE_NAMES = ("quick", "medium", "paper", "converged")
 
 #: the devices a profile (or ``--device``) may name: the CPU, or a CUDA card (``cuda:N`` picks
 #: the card; the key holds the device type only, as placement does not change a result)
@@ -55,6 +55,22 @@ def device_problem(device: object) -> str | None:
     if isinstance(device, str) and DEVICE_PATTERN.fullmatch(device):
         return None
     return f"unknown device {device!r} (choose from {DEVICE_CHOICES})"
+
+class PlateauSettings(BaseModel):
+    """A profile's convergence rule settings (:mod:`repro.train.plateau`; issue 32): the rule
+    reads each method's own quantity (:meth:`repro.models.base.Generator.plateau_rule`)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    tolerance: float = Field(0.01, gt=0.0, lt=1.0, description="relative improvement of the "
+                             "best smoothed value under which the window counts as flat")
+    window_share: float = Field(0.2, ge=0.0, lt=1.0, description="the window's share of the "
+                                "epochs run so far")
+    min_window: int = Field(5, ge=1, description="the window's least length in epochs")
+    smooth: int = Field(3, ge=1, description="epochs of the trailing mean")
+    max_minutes: float | None = Field(None, gt=0.0, description="time cap of one training "
+                                      "(cumulative over resumes); None: the epoch cap only")
+
 
 Scalar = Union[StrictBool, StrictInt, StrictFloat, StrictStr]
 # Evaluator and method tables may nest one or two levels ([paper.evaluator.train]).
@@ -82,6 +98,10 @@ class ScaleProfile(BaseModel):
     device: str = Field("cpu", description=(
         "where the profile's train and generate jobs compute: cpu, cuda or cuda:N (--device "
         "overrides it); a CUDA device enters every job key with its determinism settings"))
+    until: Literal["epochs", "plateau"] = Field("epochs", description=(
+        "'epochs': every training runs its method's epochs; 'plateau': a method's epochs are a "
+        "cap and training stops when the convergence rule fires (repro/train/plateau.py)"))
+    plateau: PlateauSettings = Field(default_factory=PlateauSettings)
     protocols: dict[str, dict[str, Value]] = Field(default_factory=dict)
     evaluator: dict[str, Value] = Field(default_factory=dict)
     methods: dict[str, dict[str, Value]] = Field(default_factory=dict)
@@ -125,6 +145,8 @@ class ScaleFile(BaseModel):
     quick: ScaleProfile
     medium: ScaleProfile
     paper: ScaleProfile
+    #: issue 32; optional, so a scales file written before it still loads
+    converged: ScaleProfile | None = None
 
 
 @dataclass(frozen=True)
@@ -149,6 +171,15 @@ class ResolvedScale:
     validation_fraction: float = 0.0
     #: where train and generate jobs compute ("cpu", "cuda", "cuda:N")
     device: str = "cpu"
+    #: canonical JSON of the trainings' schedule (``until`` + plateau settings) when the
+    #: profile trains until a plateau; "" for a fixed number of epochs
+    _schedule: str = ""
+
+    @property
+    def schedule(self) -> dict[str, Any] | None:
+        """What a train job's ``schedule`` holds (``until = "plateau"`` and the rule's
+        settings, :func:`repro.engine.steps.stopping_of`), or None for fixed epochs."""
+        return json.loads(self._schedule) if self._schedule else None
 
     # -- the free tables, as fresh plain dicts ---------------------------------------------
 
@@ -213,6 +244,8 @@ class ResolvedScale:
         }
         if self.device != "cpu":
             out["device"] = self.device
+        if self._schedule:  # only then: a fixed-epoch profile's hash is what it was
+            out["schedule"] = self.schedule
         return out
 
     @property
@@ -256,6 +289,24 @@ def device_override(device: str | None):
         _DEVICE_OVERRIDE.reset(token)
 
 
+#: ``until`` of the running computation (None: each profile's own), e.g. a sweep's plateau point
+_UNTIL_OVERRIDE: ContextVar[str | None] = ContextVar("repro_until_override", default=None)
+
+
+@contextmanager
+def until_override(until: str | None):
+    """Within the block, :func:`resolve_scale` gives every profile ``until`` ("epochs" or
+    "plateau", with the profile's own ``[plateau]`` settings) instead of its own: the budget
+    sweep's plateau point (:mod:`repro.engine.sweep`)."""
+    if until not in (None, "epochs", "plateau"):
+        raise ConfigError(f"until must be 'epochs' or 'plateau', got {until!r}")
+    token = _UNTIL_OVERRIDE.set(until)
+    try:
+        yield
+    finally:
+        _UNTIL_OVERRIDE.reset(token)
+
+
 def require_device(scale: ResolvedScale) -> str:
     """``scale.device`` when this machine can compute on it; else a ConfigError (exit 2) that
     says which profile asked for it and how to run on the CPU instead.  Called before a command
@@ -286,7 +337,7 @@ def gpus_per_job(scale: ResolvedScale) -> int:
 
 def resolve_scale(name: str, dataset: str | None = None, *, path: str | Path | None = None,
                   device: str | None = None) -> ResolvedScale:
-    """The frozen profile ``name`` (quick | medium | paper), with ``dataset`` (``--dataset``)
+    """The frozen profile ``name`` (quick | medium | paper | converged), with ``dataset`` (``--dataset``)
     overriding the profile's default data set and ``device`` (else the running command's
     :func:`device_override`, else the profile's own) its device.  Resolving never checks that
     the device exists here (:func:`require_device` does, before work)."""
@@ -303,7 +354,12 @@ def resolve_scale(name: str, dataset: str | None = None, *, path: str | Path | N
             raise ConfigError(unknown_dataset_message(dataset))
     path = Path(path) if path is not None else scales_path()
     sf = load_scales(path)
-    prof: ScaleProfile = getattr(sf, name)
+    prof: ScaleProfile | None = getattr(sf, name)
+    if prof is None:
+        from repro.specs.load import display_path
+
+        raise ConfigError(f"{display_path(path)}: no [{name}] profile (tables/scales.toml of "
+                          "the repository has one to copy)")
     payload = canonical_json({"protocols": prof.protocols, "evaluator": prof.evaluator,
                               "methods": prof.methods})
     return ResolvedScale(
@@ -312,9 +368,18 @@ def resolve_scale(name: str, dataset: str | None = None, *, path: str | Path | N
         bootstrap_resamples=prof.bootstrap_resamples, threads=prof.threads, source=str(path),
         _payload=payload, validation_fraction=float(prof.validation_fraction),
         device=device or _DEVICE_OVERRIDE.get() or prof.device,
+        _schedule=_schedule_of(prof),
     )
 
 
-__all__ = ["SCALE_NAMES", "ScaleProfile", "ScaleFile", "ResolvedScale", "device_override",
-           "device_problem", "gpus_per_job", "load_scales", "require_device", "resolve_scale",
-           "scales_path"]
+def _schedule_of(prof: ScaleProfile) -> str:
+    """:attr:`ResolvedScale._schedule` of a profile (under :func:`until_override`)."""
+    until = _UNTIL_OVERRIDE.get() or prof.until
+    if until == "epochs":
+        return ""
+    return canonical_json({"until": until, **prof.plateau.model_dump()}).decode()
+
+
+__all__ = ["SCALE_NAMES", "PlateauSettings", "ScaleProfile", "ScaleFile", "ResolvedScale",
+           "device_override", "device_problem", "gpus_per_job", "load_scales", "require_device",
+           "resolve_scale", "scales_path", "until_override"]

@@ -23,6 +23,14 @@ with the global torch RNG forked and seeded from ``(seed, "validation", epoch)``
 what it returns with a ``val_`` prefix: validation never moves the training's random stream,
 so the weights (and exact resume) are the same with or without it.  The history is in the
 checkpoint, so a resumed run's curve is the uninterrupted run's.
+
+Training until a plateau (issue 32, item 2): within :func:`use_stopping` (a job sets it from its
+scale profile's ``until = "plateau"``) the loop treats ``epochs`` as a cap and stops after the
+first epoch at which the convergence rule (:mod:`repro.train.plateau`) fires on the history, or
+after the first epoch that ends past the time cap (cumulative over resumes; a time stop depends
+on the machine's speed and is recorded as such, ``stopped_by = "time"``).  The last epoch run is
+always checkpointed, and a run resumed from a checkpoint whose history already fired stops
+without another epoch, so stopping and resuming give the uninterrupted run's bytes.
 """
 
 from __future__ import annotations
@@ -46,6 +54,30 @@ CONFIG = "config.json"
 
 #: the device :func:`train` computes on when its caller names none (set by :func:`use_device`)
 _DEVICE: ContextVar[str | None] = ContextVar("repro_train_device", default=None)
+
+
+@dataclass(frozen=True)
+class Stopping:
+    """Train until ``rule`` (a :class:`repro.train.plateau.PlateauRule`) fires, the caller's
+    ``epochs`` being the cap, or until ``max_seconds`` of training (None: no time cap)."""
+
+    rule: Any
+    max_seconds: float | None = None
+
+
+#: how :func:`train` decides to stop early (set by :func:`use_stopping`; None: run all epochs)
+_STOPPING: ContextVar[Stopping | None] = ContextVar("repro_train_stopping", default=None)
+
+
+@contextmanager
+def use_stopping(stopping: Stopping | None):
+    """Within the block, every :func:`train` call stops early as ``stopping`` says (module
+    docstring); None keeps the fixed number of epochs."""
+    token = _STOPPING.set(stopping)
+    try:
+        yield
+    finally:
+        _STOPPING.reset(token)
 
 
 @contextmanager
@@ -98,6 +130,8 @@ class TrainResult:
     resumed_from: int | None
     history: list[dict[str, float]] = field(default_factory=list)
     seconds: float = 0.0
+    #: why the loop ended: "epochs" (ran every epoch), "plateau" (the rule fired), "time"
+    stopped_by: str = "epochs"
 
 
 def _atomic_torch_save(obj: Any, path: Path) -> None:
@@ -147,15 +181,17 @@ def train(
         model.to(dev)
     t0 = time.perf_counter()
     cfg_key = content_key(config)
-    start_epoch, resumed_from, history = 0, None, []
+    start_epoch, resumed_from, history, spent = 0, None, [], 0.0
     ckpt_path = None
     if ckpt_dir is not None:
         ckpt_dir = Path(ckpt_dir)
         ckpt_path = ckpt_dir / CHECKPOINT
-        start_epoch, resumed_from, history = _resume(ckpt_dir, config, cfg_key, model,
-                                                     optimizer, scheduler)
-
-    for epoch in range(start_epoch, epochs):
+        start_epoch, resumed_from, history, spent = _resume(ckpt_dir, config, cfg_key, model,
+                                                            optimizer, scheduler)
+    stopping = _STOPPING.get()
+    stopped_by = _stop_reason(stopping, history, spent) if history else None
+    epoch = start_epoch
+    while stopped_by is None and epoch < epochs:
         rec = _train_epoch(model, optimizer, batches, step, seed, epoch, dev, grad_clip,
                            scheduler)
         if validate is not None:
@@ -163,25 +199,43 @@ def train(
         history.append(rec)
         if on_epoch is not None:
             on_epoch(epoch, rec)
-        last = epoch == epochs - 1
+        stopped_by = _stop_reason(stopping, history, spent + time.perf_counter() - t0)
+        last = epoch == epochs - 1 or stopped_by is not None
         if ckpt_path is not None and (last or (epoch + 1) % max(checkpoint_every, 1) == 0):
-            _save_checkpoint(ckpt_path, model, optimizer, scheduler, epoch, history, on_cpu)
+            _save_checkpoint(ckpt_path, model, optimizer, scheduler, epoch, history, on_cpu,
+                             spent + time.perf_counter() - t0)
+        epoch += 1
     model.eval()
     return TrainResult(epochs=epochs, resumed_from=resumed_from, history=history,
-                       seconds=time.perf_counter() - t0)
+                       seconds=time.perf_counter() - t0, stopped_by=stopped_by or "epochs")
+
+
+def _stop_reason(stopping: Stopping | None, history: list, seconds: float) -> str | None:
+    """"plateau" when the rule fires at the history's last epoch, "time" past the time cap,
+    else None (go on)."""
+    if stopping is None:
+        return None
+    from repro.train.plateau import fires_at
+
+    if fires_at(history, stopping.rule, len(history) - 1):
+        return "plateau"
+    if stopping.max_seconds is not None and seconds >= stopping.max_seconds:
+        return "time"
+    return None
 
 
 def _resume(ckpt_dir: Path, config: dict, cfg_key: str, model, optimizer, scheduler
-            ) -> tuple[int, int | None, list]:
+            ) -> tuple[int, int | None, list, float]:
     """Load the checkpoint in ``ckpt_dir`` into the model, optimiser and scheduler when its
     ``config.json`` holds ``cfg_key`` (a torn or foreign one is ignored), then write the
-    config files beside it; returns ``(start epoch, resumed_from, history)``."""
+    config files beside it; returns ``(start epoch, resumed_from, history, seconds trained
+    before)``."""
     import torch
 
     ckpt_dir.mkdir(parents=True, exist_ok=True)
     ckpt_path = ckpt_dir / CHECKPOINT
     cfg_path = ckpt_dir / CONFIG
-    start_epoch, resumed_from, history = 0, None, []
+    start_epoch, resumed_from, history, spent = 0, None, [], 0.0
     if ckpt_path.exists() and cfg_path.exists():
         try:
             saved_cfg = json.loads(cfg_path.read_text())
@@ -196,9 +250,10 @@ def _resume(ckpt_dir: Path, config: dict, cfg_key: str, model, optimizer, schedu
             start_epoch = int(state["epoch"]) + 1
             resumed_from = start_epoch
             history = json.loads(state["history"])
+            spent = float(state.get("seconds") or 0.0)
     atomic_write_bytes(cfg_path, canonical_json({"key": cfg_key}))
     atomic_write_bytes(ckpt_dir / "config.full.json", canonical_json(config))
-    return start_epoch, resumed_from, history
+    return start_epoch, resumed_from, history, spent
 
 
 def _train_epoch(model, optimizer, batches, step, seed: int, epoch: int, dev, grad_clip,
@@ -239,15 +294,16 @@ def _train_epoch(model, optimizer, batches, step, seed: int, epoch: int, dev, gr
 
 
 def _save_checkpoint(ckpt_path: Path, model, optimizer, scheduler, epoch: int, history: list,
-                     on_cpu: bool) -> None:
+                     on_cpu: bool, seconds: float = 0.0) -> None:
     """Write the checkpoint after ``epoch`` atomically: model, optimiser and scheduler states
-    (on the CPU), the epoch and the history so far."""
+    (on the CPU), the epoch, the history so far and the seconds trained (for the time cap)."""
     state = {
         "model": model.state_dict(),
         "optimizer": optimizer.state_dict(),
         "scheduler": None if scheduler is None else scheduler.state_dict(),
         "epoch": epoch,
         "history": json.dumps(history),
+        "seconds": float(seconds),
     }
     _atomic_torch_save(state if on_cpu else to_device(state, "cpu"), ckpt_path)
 

@@ -1,0 +1,144 @@
+"""The convergence rule every training is measured by (issue 32, item 1): :func:`plateau_epoch`.
+
+Why: a verdict that compares two models only says something about the *methods* when both were
+trained until they stopped improving; a model cut off while its validation error still falls is
+compared at an arbitrary point of its curve.  None of the three papers states a stopping rule
+(Neural Marionette supp. Sec. 3 trains a fixed 1,000 epochs; MultiAct's released code 1,200;
+ODMO's 100,000), so the rule is ours, and it is the same for every method.
+
+The rule reads one per-epoch quantity measured on the held-out share of the *training* split
+(:mod:`repro.train.validation`; never test data): ``val_loss`` by default, or a quantity that
+keeps its meaning when the loss itself changes meaning mid-training (MarioNet's scheduled
+sampling mixes two losses with a moving weight, so its rule reads ``val_mpjpe``; a rule may also
+name the first epoch from which its quantity is comparable, ``start_epoch``: after a
+teacher-forcing decay or a scheduled-sampling ramp has finished).
+
+At epoch *e* (0-based), with the quantity smoothed by a trailing mean over ``smooth`` epochs
+(``s``), and ``w = max(min_window, ceil(window_share · (e + 1)))`` epochs in the last window:
+
+    converged at e  ⇔  the window lies wholly at or after ``start_epoch`` + ``smooth`` − 1 and
+                        best(s before the window) − best(s in the window) < tolerance · |best(s before)|
+
+i.e. the best smoothed value improved by less than ``tolerance`` (1 %) over the last ``w``
+epochs (20 % of the run, at least 5).  A rising curve (over-fitting) and a flat one fire; a
+noisy flat one fires once the smoothing brings its noise under the tolerance; a curve still
+falling by more than 1 % per window does not.  Every smoothed value inside the window must be
+finite (a window that holds a NaN epoch never fires); before it, only finite values count.
+
+:func:`plateau_epoch` returns the first epoch at which the rule fires, so a training that stops
+there and a longer one that is read afterwards agree on when it converged.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, replace
+from typing import Any
+
+#: what :func:`criterion_text` and the records call the rule
+RULE_NAME = "plateau"
+
+
+@dataclass(frozen=True)
+class PlateauRule:
+    """The rule's settings (module docstring); defaults are the issue's: 1 % over the last
+    max(5, 20 %) epochs, on a 3-epoch trailing mean of ``val_loss``."""
+
+    metric: str = "val_loss"
+    tolerance: float = 0.01
+    window_share: float = 0.2
+    min_window: int = 5
+    smooth: int = 3
+    start_epoch: int = 0
+
+    def __post_init__(self):
+        if not (0.0 < self.tolerance < 1.0):
+            raise ValueError(f"plateau tolerance must lie in (0, 1), got {self.tolerance!r}")
+        if not (0.0 <= self.window_share < 1.0):
+            raise ValueError(f"plateau window_share must lie in [0, 1), got {self.window_share!r}")
+        if self.min_window < 1 or self.smooth < 1 or self.start_epoch < 0:
+            raise ValueError("plateau min_window and smooth must be ≥ 1, start_epoch ≥ 0")
+
+    def with_settings(self, settings: dict[str, Any] | None) -> "PlateauRule":
+        """This rule with the profile's settings (``tolerance``, ``window_share``,
+        ``min_window``, ``smooth``) applied; the method's ``metric`` and ``start_epoch`` stay."""
+        keys = ("tolerance", "window_share", "min_window", "smooth")
+        return replace(self, **{k: v for k, v in (settings or {}).items() if k in keys})
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def window(rule: PlateauRule, epochs_seen: int) -> int:
+    """The number of epochs in the last window after ``epochs_seen`` epochs."""
+    return max(rule.min_window, math.ceil(rule.window_share * epochs_seen - 1e-9))
+
+
+def _series(history: list[dict], metric: str) -> list[float]:
+    out = []
+    for h in history:
+        v = h.get(metric) if isinstance(h, dict) else None
+        out.append(float(v) if isinstance(v, (int, float)) and math.isfinite(float(v))
+                   else math.nan)
+    return out
+
+
+def _smoothed(values: list[float], k: int) -> list[float]:
+    """Trailing mean over ``k`` epochs (NaN until ``k`` values, or where any is NaN)."""
+    out = []
+    for i in range(len(values)):
+        part = values[max(0, i - k + 1): i + 1]
+        out.append(sum(part) / k if len(part) == k and all(math.isfinite(x) for x in part)
+                   else math.nan)
+    return out
+
+
+def _best(values: list[float]) -> float:
+    finite = [x for x in values if math.isfinite(x)]
+    return min(finite) if finite else math.nan
+
+
+def fires_at(history: list[dict], rule: PlateauRule, epoch: int) -> bool:
+    """Whether the rule fires at ``epoch`` reading ``history[: epoch + 1]``."""
+    s = _smoothed(_series(history[: epoch + 1], rule.metric), rule.smooth)
+    w = window(rule, epoch + 1)
+    first = epoch - w + 1  # the window's first epoch
+    if first - 1 < rule.start_epoch + rule.smooth - 1:
+        return False  # no comparable value before the window
+    before = _best(s[rule.start_epoch + rule.smooth - 1: first])
+    if not math.isfinite(before) or not all(math.isfinite(x) for x in s[first: epoch + 1]):
+        return False  # a window with a missing or non-finite value never fires
+    inside = _best(s[first: epoch + 1])
+    return (before - inside) < rule.tolerance * abs(before)
+
+
+def plateau_epoch(history: list[dict], rule: PlateauRule) -> int | None:
+    """The first epoch at which the rule fires on ``history`` (one record per epoch, in
+    order), or None when it never does."""
+    for e in range(len(history)):
+        if fires_at(history, rule, e):
+            return e
+    return None
+
+
+def criterion_text(rule: PlateauRule) -> str:
+    """The rule in words, as records and verdicts name it."""
+    start = (f", from epoch {rule.start_epoch + 1}" if rule.start_epoch else "")
+    return (f"{rule.metric} ({rule.smooth}-epoch mean{start}) improved < "
+            f"{rule.tolerance:.0%} over the last max({rule.min_window}, "
+            f"{rule.window_share:.0%}) epochs")
+
+
+def convergence_record(history: list[dict], rule: PlateauRule, stopped_by: str | None = None
+                       ) -> dict[str, Any]:
+    """What ``training.json`` records of a training's convergence: ``converged`` (bool),
+    ``converged_epoch`` (the first epoch the rule fired, 0-based; None), ``criterion`` (text),
+    ``rule`` (the settings), ``stopped_by`` ("plateau", "epochs" for the cap or a fixed
+    schedule, "time" for the time cap)."""
+    e = plateau_epoch(history, rule)
+    return {"converged": e is not None, "converged_epoch": e, "criterion": criterion_text(rule),
+            "rule": rule.to_dict(), "stopped_by": stopped_by}
+
+
+__all__ = ["PlateauRule", "RULE_NAME", "convergence_record", "criterion_text", "fires_at",
+           "plateau_epoch", "window"]

@@ -1,0 +1,234 @@
+"""The convergence rule (issue 32, item 1) on planted curves, and training until it fires
+(item 2): the loop stops at the rule's epoch and a killed run resumes to the same bytes."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from repro.train.loop import Stopping, train, use_stopping
+from repro.train.plateau import PlateauRule, convergence_record, plateau_epoch, window
+
+
+def _hist(values, metric="val_loss"):
+    return [{"epoch": i, metric: float(v)} for i, v in enumerate(values)]
+
+
+def test_still_falling_never_fires():
+    # 5 % better every epoch: every window improves by far more than 1 %
+    assert plateau_epoch(_hist(0.95 ** np.arange(80)), PlateauRule()) is None
+    # a slow fall of 0.5 % per epoch still improves > 1 % over any 5-epoch window
+    assert plateau_epoch(_hist(0.995 ** np.arange(80)), PlateauRule()) is None
+
+
+def test_flat_fires_as_soon_as_a_window_fits():
+    e = plateau_epoch(_hist([1.0] * 30), PlateauRule())
+    # smoothing needs 3 epochs (first smoothed value at epoch 2), one value before a 5-epoch window
+    assert e == 2 + 5
+
+
+def test_rising_fires():
+    e = plateau_epoch(_hist(list(0.8 ** np.arange(10)) + list(0.8 ** 9 * 1.02 ** np.arange(1, 30))),
+                      PlateauRule())
+    assert e is not None and 10 <= e <= 16
+
+
+def test_noisy_flat_fires_and_noise_without_smoothing_can_delay():
+    rng = np.random.default_rng(0)
+    curve = list(2.0 * 0.7 ** np.arange(15) + 1.0)
+    noisy = curve + list(1.0 + 0.004 * rng.standard_normal(45))
+    e = plateau_epoch(_hist(noisy), PlateauRule())
+    assert e is not None and 15 <= e <= 30
+    assert convergence_record(_hist(noisy), PlateauRule())["converged"] is True
+
+
+def test_falls_then_plateaus_fires_after_the_knee():
+    curve = [max(0.3, 1.0 - 0.05 * i) for i in range(60)]   # flat from epoch 14
+    e = plateau_epoch(_hist(curve), PlateauRule())
+    assert e is not None and 14 < e <= 14 + 2 + window(PlateauRule(), e + 1)
+
+
+def test_window_grows_with_the_run():
+    r = PlateauRule()
+    assert window(r, 10) == 5 and window(r, 25) == 5 and window(r, 26) == 6 and window(r, 100) == 20
+
+
+def test_start_epoch_and_metric_and_nan():
+    flat = _hist([1.0] * 30, metric="val_mpjpe")
+    assert plateau_epoch(flat, PlateauRule()) is None           # reads val_loss: absent
+    assert plateau_epoch(flat, PlateauRule(metric="val_mpjpe")) == 7
+    assert plateau_epoch(flat, PlateauRule(metric="val_mpjpe", start_epoch=10)) == 17
+    with_nan = _hist([1.0] * 6 + [math.nan] * 30)
+    assert plateau_epoch(with_nan, PlateauRule()) is None
+
+
+def test_rule_settings_are_checked():
+    with pytest.raises(ValueError):
+        PlateauRule(tolerance=0.0)
+    r = PlateauRule(metric="val_mpjpe", start_epoch=3).with_settings(
+        {"until": "plateau", "tolerance": 0.05, "min_window": 7, "max_minutes": 3})
+    assert (r.metric, r.start_epoch, r.tolerance, r.min_window) == ("val_mpjpe", 3, 0.05, 7)
+
+
+# ------------------------------------------------------------------ the loop, until the plateau
+def _setup():
+    torch.manual_seed(123)
+    model = torch.nn.Sequential(torch.nn.Linear(4, 8), torch.nn.Tanh(), torch.nn.Linear(8, 1))
+    opt = torch.optim.Adam(model.parameters(), lr=3e-2)
+    X = torch.linspace(-1, 1, 64 * 4).reshape(64, 4)
+    y = X.sum(1, keepdim=True) ** 2
+
+    def batches(epoch, gen):
+        perm = torch.randperm(64, generator=gen)
+        for i in range(0, 64, 16):
+            idx = perm[i:i + 16]
+            yield X[idx], y[idx]
+
+    def step(m, batch, epoch):
+        xb, yb = batch
+        return {"loss": torch.nn.functional.mse_loss(m(xb), yb)}
+
+    def validate(m, epoch):
+        return {"loss": torch.nn.functional.mse_loss(m(X), y)}
+
+    return model, opt, batches, step, validate
+
+
+def _weights(m):
+    return torch.cat([p.detach().flatten() for p in m.parameters()])
+
+
+def test_train_until_plateau_stops_at_the_rules_epoch_and_resumes_bitwise(tmp_path):
+    cfg = {"what": "toy regression until a plateau"}
+    rule = PlateauRule()
+    m, o, b, s, v = _setup()
+    full = train(m, o, batches=b, step=s, validate=v, epochs=300, seed=3, config=cfg)
+    fired = plateau_epoch(full.history, rule)
+    assert full.stopped_by == "epochs" and fired is not None and fired < 250
+
+    m1, o1, b, s, v = _setup()
+    with use_stopping(Stopping(rule)):
+        res = train(m1, o1, batches=b, step=s, validate=v, epochs=300, seed=3, config=cfg,
+                    ckpt_dir=tmp_path / "a")
+    assert res.stopped_by == "plateau" and len(res.history) == fired + 1
+    assert res.history == full.history[: fired + 1]
+
+    # killed half-way (a checkpoint after `fired // 2` epochs), then the same command again
+    m2, o2, b, s, v = _setup()
+    with use_stopping(Stopping(rule)):
+        train(m2, o2, batches=b, step=s, validate=v, epochs=fired // 2 + 1, seed=3, config=cfg,
+              ckpt_dir=tmp_path / "b")
+    m3, o3, b, s, v = _setup()
+    with use_stopping(Stopping(rule)):
+        again = train(m3, o3, batches=b, step=s, validate=v, epochs=300, seed=3, config=cfg,
+                      ckpt_dir=tmp_path / "b")
+    assert again.resumed_from == fired // 2 + 1 and again.stopped_by == "plateau"
+    assert torch.equal(_weights(m3), _weights(m1)) and again.history == res.history
+
+    # a finished run started again reads its checkpoint and trains no further epoch
+    m4, o4, b, s, v = _setup()
+    with use_stopping(Stopping(rule)):
+        done = train(m4, o4, batches=b, step=s, validate=v, epochs=300, seed=3, config=cfg,
+                     ckpt_dir=tmp_path / "a")
+    assert done.resumed_from == fired + 1 and len(done.history) == fired + 1
+    assert torch.equal(_weights(m4), _weights(m1))
+
+
+def test_time_cap_and_no_validation():
+    m, o, b, s, v = _setup()
+    with use_stopping(Stopping(PlateauRule(), max_seconds=0.0)):
+        res = train(m, o, batches=b, step=s, validate=v, epochs=50, seed=3, config={})
+    assert res.stopped_by == "time" and len(res.history) == 1
+    m, o, b, s, _ = _setup()  # no validation: the rule has nothing to read and never fires
+    with use_stopping(Stopping(PlateauRule())):
+        res = train(m, o, batches=b, step=s, epochs=12, seed=3, config={})
+    assert res.stopped_by == "epochs" and len(res.history) == 12
+
+
+# ------------------------------------------------------------ records, evidence and verdicts
+def _training(row, until, converged, epochs=20, stopped_by="plateau"):
+    hist = [{"epoch": i, "val_loss": 1.0, "batches": 3} for i in range(epochs)]
+    return {"row": row, "training": {"until": until, "epochs": 80, "history": hist,
+                                     "convergence": {"converged": converged,
+                                                     "converged_epoch": epochs - 1 if converged else None,
+                                                     "criterion": "val_loss improved < 1%",
+                                                     "stopped_by": stopped_by}}}
+
+
+def test_row_convergence_counts_only_trainings_run_until_the_plateau():
+    from repro.engine.tables import row_convergence
+
+    conv = row_convergence([_training("a", "plateau", True), _training("a", "plateau", False,
+                                                                         stopped_by="time"),
+                            _training("b", "epochs", True, stopped_by="epochs"),
+                            {"row": "nn", "training": {"epochs": None, "history": []}}])
+    assert conv["a"]["trainings"] == 2 and conv["a"]["converged"] == 1
+    assert conv["b"]["converged"] == 0 and conv["b"]["plateau_runs"] == 0
+    assert "nn" not in conv
+
+
+def test_verdicts_at_convergence():
+    from repro.engine.evidence import NOT_REPRODUCED_BUDGET, claim_evidence, qualified_verdict
+    from repro.engine.tables import row_convergence
+
+    budgets = {"a": {"method": "m", "fraction": 0.01, "epochs": 20, "paper_epochs": 1000},
+               "b": {"method": "n", "fraction": 0.02, "epochs": 20, "paper_epochs": 1000}}
+
+    def ev(trainings, retrain=True, rows=("a", "b"), dataset="bandai2"):
+        return claim_evidence(rows=list(rows), budgets=budgets, retrain=retrain, replicates=3,
+                              evaluators=[], scale="converged",
+                              convergence=row_convergence(trainings), dataset=dataset)
+
+    both = [_training("a", "plateau", True), _training("b", "plateau", True)]
+    e = ev(both)
+    assert e["converged"] is True and "every training at its plateau" in e["text"]
+    assert qualified_verdict("contradicted", e) == "contradicted at convergence on the stand-in"
+    assert qualified_verdict("supported", e) == "supported at convergence on the stand-in"
+    assert qualified_verdict("inconclusive", e) == "inconclusive"
+    assert qualified_verdict("supported", ev(both, retrain=False)) == \
+        "supported at convergence on the stand-in (sampling variance only)"
+    # one row cut by the time cap: as before (the budget decides a contradiction)
+    half = [_training("a", "plateau", True), _training("b", "plateau", False, stopped_by="time")]
+    e = ev(half)
+    assert e["converged"] is False and "the time cap" in e["text"]
+    assert qualified_verdict("contradicted", e) == NOT_REPRODUCED_BUDGET
+    assert qualified_verdict("supported", e) == "supported"
+    # fixed epochs whose rule fired: not "at convergence" (baselines' verdicts keep meaning)
+    fixed = [_training("a", "epochs", True, stopped_by="epochs"),
+             _training("b", "epochs", True, stopped_by="epochs")]
+    e = ev(fixed)
+    assert e["converged"] is False and "a fixed number of epochs" in e["text"]
+    assert qualified_verdict("supported", e) == "supported"
+    # no trained row: None
+    assert ev(both, rows=("real",))["converged"] is None
+
+
+def test_curve_text_says_when_the_rule_fired():
+    from repro.report.curves import format_learning_curve
+
+    t = _training("a", "plateau", True)["training"]
+    lines = format_learning_curve(t)
+    assert "epochs 20 of a cap of 80" in lines[-2]
+    assert lines[-1].startswith("converged at epoch 19") and "trained until the plateau" in lines[-1]
+    old = dict(t)
+    del old["convergence"]
+    assert not format_learning_curve(old)[-1].startswith("converged")
+
+
+def test_train_jobs_carry_the_schedule_only_when_training_until_the_plateau():
+    from repro.engine.table_plan import build_plan
+    from repro.specs.load import find_spec
+    from repro.specs.scales import resolve_scale
+
+    spec = find_spec("multiact/table2")
+
+    def train_configs(scale):
+        plan = build_plan(spec, resolve_scale(scale, "bandai2-mini"))
+        return [j.config for rp in plan.rows for js in rp.train.values() for j in js]
+
+    quick = train_configs("quick")
+    conv = train_configs("converged")
+    assert quick and all("schedule" not in c for c in quick)
+    assert conv and all(c["schedule"]["until"] == "plateau" for c in conv)
+    assert conv[0]["schedule"]["max_minutes"] == 25.0
