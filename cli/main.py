@@ -42,6 +42,7 @@ COMMAND_MODULES = (
     "data",     # data prepare | info | bundle
     "eval",     # eval classifier | real
     "runs",     # runs ls | show | diff | reindex
+    "claims",   # claims: every claim of every spec, one line each
     "report",   # report | strips | export
     "cache",    # cache ls | verify | gc
     "doctor",

@@ -35,6 +35,7 @@ MODES = {
     "repro sweep marionette/table1 --budget 0.5,1,2,4": "slow",
     "repro runs show latest": "slow",
     "repro runs ls": "fast",
+    "repro claims": "fast",
     "repro cache verify": "fast",
     "repro spec check": "fast",
     "repro doctor": "fast",

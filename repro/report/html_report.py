@@ -2,8 +2,10 @@
 
 ``write_report(tables, out)`` writes into ``out``:
 
-- ``index.html``: every registered table with its state (reported in this folder, last run,
-  not run, not implemented), linking the pages written;
+- ``index.html``: every claim of every spec, one line each (:func:`claims_index`, as
+  ``repro claims --scale <scale>`` lists them; issue 32, item 6), then every registered table
+  with its state (reported in this folder, last run, not run, not implemented), linking the
+  pages written;
 - ``<paper>-<table>.html`` per table: the paper-vs-ours table with intervals (the same view
   every other format renders, :mod:`repro.report.render`), every claim with its verdict and
   what decided it, the comparison strips of every row for the same items
@@ -82,12 +84,10 @@ def _page(title: str, body: list[str]) -> str:
 
 
 def _verdict_class(v: str) -> str:
-    v = v.lower()
-    if v.startswith("supported"):
-        return "v-supported"
-    if v.startswith("contradicted"):
-        return "v-contradicted"
-    return "v-other"
+    from repro.engine.claims_list import verdict_kind
+
+    kind = verdict_kind(v)
+    return f"v-{kind}" if kind in ("supported", "contradicted") else "v-other"
 
 
 def _claims_html(view) -> list[str]:
@@ -279,11 +279,39 @@ def table_page(table_id: str, out: Path, *, scale: str = "quick", dataset: str |
             "claims": [(c.verdict, c.text) for c in view.claims], "title": spec.title}
 
 
+def claims_index(scale: str, dataset: str | None = None,
+                 runs: dict[str, Path | None] | None = None) -> list[str]:
+    """The top of the index page (issue 32, item 6): every claim of every spec, one line each,
+    as ``repro claims --scale <scale>`` lists them (:mod:`repro.engine.claims_list`; ``runs``:
+    the run of a table given by ``--run``); the verdicts coloured as on a table's page, every
+    cell escaped."""
+    from repro.engine.claims_list import HEADINGS, NOT_RUN, claim_cells, list_claims
+
+    entries = list_claims(scale=scale, dataset=dataset, runs=runs)
+    tables = {e["table"] for e in entries}
+    n_run = len(tables - {e["table"] for e in entries if e["verdict"] == NOT_RUN})
+    out = ["<h2>Claims</h2>",
+           f"<p class=\"muted\">Every claim of every spec ({len(entries)}), with the verdict "
+           f"of its table's newest finished run at scale {E(scale)} (tables with one: "
+           f"{n_run} of {len(tables)}; the others' claims read \"not run\"). P: the "
+           "probability that the claim holds; "
+           "converged: whether every trained row it involves trained to a plateau; budget: "
+           "the trained rows' training against the paper's schedule (*: assumed).</p>",
+           "<table class=\"claims\"><tr>" + "".join(
+               f"<th>{h}</th>" for h in HEADINGS) + "</tr>"]
+    for e in entries:
+        cells = [f"<td>{E(c)}</td>" for c in claim_cells(e)]
+        cells[3] = f"<td class=\"verdict {_verdict_class(e['verdict'])}\">{E(e['verdict'])}</td>"
+        out.append("<tr>" + "".join(cells) + "</tr>")
+    out.append("</table>")
+    return out
+
+
 def write_report(tables: list[str], out: str | Path, *, scale: str = "quick",
                  dataset: str | None = None, run: str | None = None, items: int = 2,
                  strips: bool = True) -> Path:
     """Write the report of ``tables`` into ``out``; returns the index page's path."""
-    from repro.engine.runner import latest_run, table_spec
+    from repro.engine.runner import latest_run, table_run, table_spec
     from repro.specs.load import load_all
 
     from repro.errors import ConfigError
@@ -308,7 +336,9 @@ def write_report(tables: list[str], out: str | Path, *, scale: str = "quick",
             st = f"not in this report (last run {last.name})" if last else "not in this report"
             rows.append(f"<tr><td>{E(sid)}</td><td>{E(spec.title)}</td><td>{E(st)}</td>"
                         "<td>-</td><td>-</td></tr>")
-    body = ["<h1>repro report</h1>",
+    runs = {ids[0]: table_run(table_spec(ids[0]), scale, dataset, run)} if run else None
+    body = ["<h1>repro report</h1>", *claims_index(scale, dataset, runs),
+            "<h2>Tables</h2>",
             f"<p class=\"muted\">Scale {E(scale)}; {len(done)} of {len(rows)} tables reported "
             "here. Each page: the paper's table beside ours, the claims with their verdicts, "
             "plots, strips of the motions, provenance.</p>",

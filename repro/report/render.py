@@ -85,7 +85,7 @@ def _term_tail(console, view) -> None:
         console.print(line, highlight=False, markup=False)
 
 
-def _md(s: str) -> str:
+def md_text(s: str) -> str:
     """Text for Markdown: HTML's ``& < >`` as entities (a spec label never becomes markup
     where the Markdown is rendered), ``|`` escaped (it would end a table cell) and line
     breaks as spaces (they would end the table, the heading or the list item)."""
@@ -97,9 +97,9 @@ def _md_tail(view) -> list[str]:
     """Claims and footer lines under a Markdown table or figure."""
     lines: list[str] = []
     if view.claims:
-        lines += ["", "**Claims**", ""] + [f"- {_md(_claim_line(cl))}" for cl in view.claims]
+        lines += ["", "**Claims**", ""] + [f"- {md_text(_claim_line(cl))}" for cl in view.claims]
     if view.footer:
-        lines += [""] + [f"{_md(x)}  " for x in view.footer]
+        lines += [""] + [f"{md_text(x)}  " for x in view.footer]
     return lines
 
 
@@ -147,17 +147,18 @@ def _render_term(view: TableView) -> str:
     return buf.getvalue()
 
 
-def _md_row(cells) -> str:
-    return "| " + " | ".join(_md(c) for c in cells) + " |"
+def md_row(cells) -> str:
+    """One Markdown table line of ``cells``, each escaped by :func:`md_text`."""
+    return "| " + " | ".join(md_text(c) for c in cells) + " |"
 
 
 def _render_md(view: TableView) -> str:
     head = ["row", ""] + [f"{c.label}{_arrow(c.direction, c.label)}" for c in view.columns]
-    lines = [f"### {_md(_title(view))}", "", _md_row(head), "|" + "---|" * len(head)]
+    lines = [f"### {md_text(_title(view))}", "", md_row(head), "|" + "---|" * len(head)]
     for row in view.rows:
-        lines.append(_md_row([row.label, "paper"] + [paper_text(row.cells.get(c.id, CellView()))
+        lines.append(md_row([row.label, "paper"] + [paper_text(row.cells.get(c.id, CellView()))
                                                      for c in view.columns]))
-        lines.append(_md_row(["", "ours"] + [ours_text(row.cells.get(c.id, CellView(status=row.status)))
+        lines.append(md_row(["", "ours"] + [ours_text(row.cells.get(c.id, CellView(status=row.status)))
                                              for c in view.columns]))
     return "\n".join(lines + _md_tail(view)) + "\n"
 
@@ -283,13 +284,13 @@ def _figure_term(view: FigureView) -> str:
 
 def _figure_md(view: FigureView) -> str:
     xlabel = view.x.label if view.x is not None else "x"
-    lines = [f"### {_md(_title(view))}", "", _md(view.axis_line())]
+    lines = [f"### {md_text(_title(view))}", "", md_text(view.axis_line())]
     for col in view.columns:
         head = [xlabel] + [r.label for r in view.rows]
-        lines += ["", f"#### {_md(_column_title(col))}", "", _md_row(head),
+        lines += ["", f"#### {md_text(_column_title(col))}", "", md_row(head),
                   "|" + "---|" * len(head)]
         for xs, key in view.cell_keys(col.id):
-            lines.append(_md_row([xs] + [_figure_cell(r, key) for r in view.rows]))
+            lines.append(md_row([xs] + [_figure_cell(r, key) for r in view.rows]))
     return "\n".join(lines + _md_tail(view)) + "\n"
 
 
