@@ -330,7 +330,8 @@ def test_train_method_until_plateau_stops_and_records(clips, items, tmp_path, mo
     monkeypatch.setattr(steps, "training_items", lambda cfg, c, kind="actions": items)
     mcfg = generator_class("marionet").Config.resolve(
         {**TINY_MARIONET, "epochs": 6}).model_dump(mode="json")
-    # a rule that fires as soon as it can: any improvement under 99 % over a 1-epoch window
+    # a rule that fires as soon as it can: any improvement under 99 % between two 1-epoch
+    # windows, counted from the end of scheduled sampling (epoch 3): first at epoch 4
     sched = {"until": "plateau", "tolerance": 0.99, "window_share": 0.0, "min_window": 1,
              "smooth": 1, "max_minutes": None}
     cfg = {"dataset": "synthetic", "items": {}, "method": "marionet", "method_config": mcfg,
@@ -340,5 +341,5 @@ def test_train_method_until_plateau_stops_and_records(clips, items, tmp_path, mo
     rec = json.loads((ctx.out / "training.json").read_text())
     assert rec["until"] == "plateau" and rec["epochs"] == 6
     conv = rec["convergence"]
-    assert conv["converged"] and conv["stopped_by"] == "plateau" and conv["converged_epoch"] == 1
-    assert len(rec["history"]) == 2 and conv["rule"]["tolerance"] == 0.99
+    assert conv["converged"] and conv["stopped_by"] == "plateau" and conv["converged_epoch"] == 4
+    assert len(rec["history"]) == 5 and conv["rule"]["tolerance"] == 0.99

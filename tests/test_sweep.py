@@ -94,4 +94,4 @@ def test_plateau_point_parses_last_and_resolves_a_plateau_schedule():
         sched = resolve_scale("quick").schedule
     assert sched["until"] == "plateau" and sched["tolerance"] == 0.01
     assert resolve_scale("quick").schedule is None
-    assert resolve_scale("converged").schedule["max_minutes"] == 25.0
+    assert resolve_scale("converged").schedule["max_minutes"] == 20.0

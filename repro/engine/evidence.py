@@ -229,7 +229,7 @@ def claim_evidence(*, rows: list[str], budgets: dict[str, dict | None], retrain:
     else:
         parts.append("budget: no trained row involved")
     if trained:
-        parts.append(convergence_text(conv))
+        parts.append(convergence_text(conv, scale))
     if evaluators:
         parts.append("evaluator: " + "; ".join(evaluators))
     return {"variance": "training" if retrain else "sampling", "replicates": replicates,
@@ -241,17 +241,23 @@ def claim_evidence(*, rows: list[str], budgets: dict[str, dict | None], retrain:
             "text": "; ".join(parts)}
 
 
-def convergence_text(conv: dict[str, dict | None]) -> str:
+def convergence_text(conv: dict[str, dict | None], scale: str | None = None) -> str:
     """``convergence: every training at its plateau (marionet 34 epochs, ...; rule: ...)``, or
     which rows were not trained to their plateau and why: a fixed number of epochs (a profile
-    without ``until = "plateau"``), the epoch cap or the time cap."""
+    without ``until = "plateau"``), the epoch cap or the time cap.  Below the ``paper`` scale a
+    converged comparison names whose widths converged: the profile's, not the papers' (a
+    verdict "at convergence" is about these models, which tables/scales.toml compares with the
+    papers')."""
     done = {r: c for r, c in conv.items()
             if c is not None and c["trainings"] and c["converged"] == c["trainings"]}
     if conv and len(done) == len(conv):
         crit = next((c["criterion"] for c in done.values() if c.get("criterion")), None)
         runs = ", ".join(f"{r} {'/'.join(str(e) for e in c['epochs'])} epochs"
                          for r, c in done.items())
-        return f"convergence: every training at its plateau ({runs}; rule: {crit})"
+        widths = ("" if scale in (None, PAPER_SCALE) else
+                  f"; at the {scale} profile's widths, smaller than the papers' "
+                  "(tables/scales.toml)")
+        return f"convergence: every training at its plateau ({runs}; rule: {crit}){widths}"
     words = {"epochs": "the epoch cap", "time": "the time cap"}
     why = []
     for r, c in conv.items():

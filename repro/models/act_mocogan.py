@@ -305,6 +305,14 @@ class ActMoCoGAN(Generator):
         return {"joints": torch.from_numpy(np.ascontiguousarray(wb.joints, dtype=np.float32)),
                 "labels": torch.from_numpy(np.asarray(wb.labels, dtype=np.int64))}
 
+    def plateau_rule(self):
+        """No convergence rule (issue 32): the held-out adversarial loss measures the balance
+        of generator and discriminators, not the generator's quality, and no other held-out
+        quantity does; Act-MoCoGAN trains to its cap and never counts as converged."""
+        from repro.train.plateau import PlateauRule
+
+        return PlateauRule(metric=None)
+
     def fit(self, train_items, *, seed: int, ckpt_dir: str | Path | None = None,
             on_epoch: Callable[[int, dict[str, float]], None] | None = None,
             val_items=None):

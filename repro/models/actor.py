@@ -121,6 +121,14 @@ class ACTOR(Generator):
         return self.net
 
     # -- training ------------------------------------------------------------------------------
+    def plateau_rule(self):
+        """The convergence rule (issue 32) reads ``val_loss`` and ``val_kl``: λ_KL = 1e-5 (Sec.
+        3.3) leaves the loss almost all reconstruction, blind to the per-action prior the
+        generator samples from; the held-out KL measures it."""
+        from repro.train.plateau import PlateauRule
+
+        return PlateauRule(also=("val_kl",))
+
     def training_step(self, net: ACTORNet, batch: dict, epoch: int) -> dict[str, torch.Tensor]:
         """``L`` of the module docstring on one batch (reparameterisation noise from the global
         torch RNG, which the training loop seeds per epoch)."""

@@ -415,10 +415,11 @@ class DLowGen(Generator):
             results.append(res)
             offset += len(res.history)  # the stage's epochs (fewer when it stopped at a plateau)
         r_vae, r_dlow = results
-        if r_vae.resumed_from is not None and r_vae.resumed_from < cfg.vae_epochs:
+        n_vae = len(r_vae.history)  # the VAE's epochs (fewer than its cap at a plateau)
+        if r_vae.resumed_from is not None and r_vae.resumed_from < n_vae:
             resumed = r_vae.resumed_from
         elif r_vae.resumed_from is not None or r_dlow.resumed_from is not None:
-            resumed = cfg.vae_epochs + (r_dlow.resumed_from or 0)
+            resumed = n_vae + (r_dlow.resumed_from or 0)
         else:
             resumed = None
         self.net.eval()

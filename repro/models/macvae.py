@@ -145,6 +145,14 @@ class MACVAE(Generator):
         L = int((data["l_p"] + data["l_t"] + data["l_c"])[idx].max())
         return {k: (v[idx][:, :L] if k in ("seq", "joints") else v[idx]) for k, v in data.items()}
 
+    def plateau_rule(self):
+        """The convergence rule (issue 32) reads ``val_loss`` and ``val_kl``: with λ_KL = 1e-5
+        (the released code's weight) the loss is almost all reconstruction and barely moves
+        with the prior tokens the generator samples from; the held-out KL measures them."""
+        from repro.train.plateau import PlateauRule
+
+        return PlateauRule(also=("val_kl",))
+
     def training_step(self, net: MACVAENet, batch: dict, epoch: int) -> dict[str, torch.Tensor]:
         """``L`` of the module docstring on one batch."""
         cfg = self.config

@@ -384,10 +384,13 @@ class MarioNet(Generator):
         """The convergence rule (issue 32) reads the held-out ``val_mpjpe`` (metres, of the
         teacher-forced first pass), not ``val_loss``: scheduled sampling (supp. Sec. 3) moves
         the loss's weights λ1/λ2 and its second pass's share ξ, so the loss changes meaning
-        between the activate and accomplish epochs while the first pass's error does not."""
+        between the activate and accomplish epochs while the first pass's error does not.  It
+        counts only from ``ss_accomplish_epoch``: before it, the second pass's growing share
+        moves the gradient the first pass gets, so the same quantity is not yet comparable."""
         from repro.train.plateau import PlateauRule
 
-        return PlateauRule(metric="val_mpjpe")
+        return PlateauRule(metric="val_mpjpe",
+                           start_epoch=int(self.config.ss_accomplish_epoch))
 
     def fit(self, train_items: ActionItems, *, seed: int, ckpt_dir: str | Path | None = None,
             on_epoch: Callable[[int, dict[str, float]], None] | None = None,

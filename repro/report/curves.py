@@ -101,6 +101,9 @@ def convergence_line(training: dict) -> str | None:
     if conv.get("converged"):
         e = conv.get("converged_epoch")
         head = ("converged" if e is None else f"converged at epoch {e}") + f" ({crit})"
+    elif conv.get("converged_epoch") is not None:
+        head = (f"not converged at its last epoch ({crit} first held at epoch "
+                f"{conv['converged_epoch']}, then no longer)")
     else:
         head = f"not converged ({crit} never held)"
     stop = {"plateau": "stopped by the rule", "epochs": "ran to its last epoch",

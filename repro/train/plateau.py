@@ -13,20 +13,32 @@ sampling mixes two losses with a moving weight, so its rule reads ``val_mpjpe``;
 name the first epoch from which its quantity is comparable, ``start_epoch``: after a
 teacher-forcing decay or a scheduled-sampling ramp has finished).
 
-At epoch *e* (0-based), with the quantity smoothed by a trailing mean over ``smooth`` epochs
-(``s``), and ``w = max(min_window, ceil(window_share · (e + 1)))`` epochs in the last window:
+At epoch *e* (0-based), with each quantity smoothed by a trailing mean over ``smooth`` epochs
+(``s``), and ``w = max(min_window, ceil(window_share · (e + 1)))`` epochs per window:
 
-    converged at e  ⇔  the window lies wholly at or after ``start_epoch`` + ``smooth`` − 1 and
-                        best(s before the window) − best(s in the window) < tolerance · |best(s before)|
+    converged at e  ⇔  the last two windows of ``w`` epochs lie wholly at or after
+                        ``start_epoch`` + ``smooth`` − 1, and
+                        mean(s over the window before) − mean(s over the last window)
+                            ≤ tolerance · |mean(s over the window before)|
 
-i.e. the best smoothed value improved by less than ``tolerance`` (1 %) over the last ``w``
-epochs (20 % of the run, at least 5).  A rising curve (over-fitting) and a flat one fire; a
-noisy flat one fires once the smoothing brings its noise under the tolerance; a curve still
-falling by more than 1 % per window does not.  Every smoothed value inside the window must be
-finite (a window that holds a NaN epoch never fires); before it, only finite values count.
+i.e. the smoothed quantity improved by at most ``tolerance`` (1 %) over the last ``w`` epochs
+(20 % of the run, at least 5), window mean against window mean.  Means, not best values: a
+curve still falling by a few per cent per window under epoch-to-epoch noise (the held-out
+draws are seeded per epoch) must not fire because one lucky early epoch stands as the best; a
+window mean averages ``w`` epochs of noise away.  A rising curve (over-fitting) and a flat one
+fire; a curve still falling by more than 1 % per window does not.  Every smoothed value in both
+windows must be finite (a window that holds a NaN epoch never fires).
+
+A rule may read several quantities (``also``): it fires only when each one does.  MACVAE and
+ACTOR weight their KL term by 1e-5, so ``val_loss`` is almost all reconstruction and says
+nearly nothing about the learned prior the generator samples from; their rules also read
+``val_kl``.  A method with no held-out quantity that measures its generator (an adversarial
+one: Act-MoCoGAN) has ``metric = None``: its rule never fires, and it trains to its cap.
 
 :func:`plateau_epoch` returns the first epoch at which the rule fires, so a training that stops
-there and a longer one that is read afterwards agree on when it converged.
+there and a longer one that is read afterwards agree on when it first converged; a record's
+``converged`` is whether the rule holds at its *last* epoch (a fixed-epoch training whose curve
+flattened and then fell again has not converged), and ``converged_epoch`` is the first firing.
 """
 
 from __future__ import annotations
@@ -44,7 +56,8 @@ class PlateauRule:
     """The rule's settings (module docstring); defaults are the issue's: 1 % over the last
     max(5, 20 %) epochs, on a 3-epoch trailing mean of ``val_loss``."""
 
-    metric: str = "val_loss"
+    metric: str | None = "val_loss"
+    also: tuple[str, ...] = ()
     tolerance: float = 0.01
     window_share: float = 0.2
     min_window: int = 5
@@ -65,8 +78,15 @@ class PlateauRule:
         keys = ("tolerance", "window_share", "min_window", "smooth")
         return replace(self, **{k: v for k, v in (settings or {}).items() if k in keys})
 
+    @property
+    def metrics(self) -> tuple[str, ...]:
+        """Every quantity the rule reads (none for a method it cannot measure)."""
+        return () if self.metric is None else (self.metric, *self.also)
+
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        d = asdict(self)
+        d["also"] = list(self.also)
+        return d
 
 
 def window(rule: PlateauRule, epochs_seen: int) -> int:
@@ -98,18 +118,25 @@ def _best(values: list[float]) -> float:
     return min(finite) if finite else math.nan
 
 
-def fires_at(history: list[dict], rule: PlateauRule, epoch: int) -> bool:
-    """Whether the rule fires at ``epoch`` reading ``history[: epoch + 1]``."""
-    s = _smoothed(_series(history[: epoch + 1], rule.metric), rule.smooth)
+def _fires_on(series: list[float], rule: PlateauRule, epoch: int) -> bool:
+    s = _smoothed(series[: epoch + 1], rule.smooth)
     w = window(rule, epoch + 1)
-    first = epoch - w + 1  # the window's first epoch
-    if first - 1 < rule.start_epoch + rule.smooth - 1:
-        return False  # no comparable value before the window
-    before = _best(s[rule.start_epoch + rule.smooth - 1: first])
-    if not math.isfinite(before) or not all(math.isfinite(x) for x in s[first: epoch + 1]):
+    first = epoch - 2 * w + 1  # the window before's first epoch
+    if first < rule.start_epoch + rule.smooth - 1:
+        return False  # two whole comparable windows are not there yet
+    before, last = s[first: first + w], s[first + w: epoch + 1]
+    if not all(math.isfinite(x) for x in before + last):
         return False  # a window with a missing or non-finite value never fires
-    inside = _best(s[first: epoch + 1])
-    return (before - inside) < rule.tolerance * abs(before)
+    m_before, m_last = sum(before) / w, sum(last) / w
+    return (m_before - m_last) <= rule.tolerance * abs(m_before)
+
+
+def fires_at(history: list[dict], rule: PlateauRule, epoch: int) -> bool:
+    """Whether the rule fires at ``epoch`` reading ``history[: epoch + 1]``: on every
+    quantity it reads (never, for a rule that reads none)."""
+    if not rule.metrics or epoch < 0:
+        return False
+    return all(_fires_on(_series(history, m), rule, epoch) for m in rule.metrics)
 
 
 def plateau_epoch(history: list[dict], rule: PlateauRule) -> int | None:
@@ -123,20 +150,26 @@ def plateau_epoch(history: list[dict], rule: PlateauRule) -> int | None:
 
 def criterion_text(rule: PlateauRule) -> str:
     """The rule in words, as records and verdicts name it."""
-    start = (f", from epoch {rule.start_epoch + 1}" if rule.start_epoch else "")
-    return (f"{rule.metric} ({rule.smooth}-epoch mean{start}) improved < "
-            f"{rule.tolerance:.0%} over the last max({rule.min_window}, "
-            f"{rule.window_share:.0%}) epochs")
+    if not rule.metrics:
+        return ("none: no held-out quantity measures this method's generator (adversarial "
+                "training); it trains to its cap and never counts as converged")
+    start = (f", after the first {rule.start_epoch} epochs" if rule.start_epoch else "")
+    names = " and ".join(rule.metrics)
+    return (f"{names} ({rule.smooth}-epoch mean{start}): mean of the last max("
+            f"{rule.min_window}, {rule.window_share:.0%}) epochs improved ≤ "
+            f"{rule.tolerance:.0%} on the window before")
 
 
 def convergence_record(history: list[dict], rule: PlateauRule, stopped_by: str | None = None
                        ) -> dict[str, Any]:
-    """What ``training.json`` records of a training's convergence: ``converged`` (bool),
-    ``converged_epoch`` (the first epoch the rule fired, 0-based; None), ``criterion`` (text),
+    """What ``training.json`` records of a training's convergence: ``converged`` (bool: the
+    rule holds at the history's last epoch), ``converged_epoch`` (the first epoch the rule
+    fired, 0-based; None when it never did), ``criterion`` (text),
     ``rule`` (the settings), ``stopped_by`` ("plateau", "epochs" for the cap or a fixed
     schedule, "time" for the time cap)."""
     e = plateau_epoch(history, rule)
-    return {"converged": e is not None, "converged_epoch": e, "criterion": criterion_text(rule),
+    holds = e is not None and fires_at(history, rule, len(history) - 1)
+    return {"converged": holds, "converged_epoch": e, "criterion": criterion_text(rule),
             "rule": rule.to_dict(), "stopped_by": stopped_by}
 
 
