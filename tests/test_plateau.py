@@ -113,7 +113,20 @@ def test_a_rule_on_two_quantities_fires_when_both_do():
     both = [{"val_loss": 1.0, "val_kl": 0.9 ** min(i, 20)} for i in range(60)]
     e = plateau_epoch(both, rule)
     assert e is not None and e > 20
-    assert "val_loss and val_kl" in convergence_record(both, rule)["criterion"]
+    assert "val_kl changed < 1% either way" in convergence_record(both, rule)["criterion"]
+    # a KL still rising (posteriors drifting from the prior) holds the rule back too
+    rising_kl = [{"val_loss": 1.0, "val_kl": 1.02 ** i} for i in range(60)]
+    assert plateau_epoch(rising_kl, rule) is None
+    assert plateau_epoch(rising_kl, PlateauRule()) == 11
+
+
+def test_a_gate_counts_only_epochs_where_it_is_one():
+    rule = PlateauRule(gate="val_ss_active")
+    hist = [{"val_loss": 1.0, "val_ss_active": 1.0 if i >= 8 else 0.5} for i in range(40)]
+    assert plateau_epoch(hist, rule) == 8 + 11
+    hist[25]["val_ss_active"] = 0.75   # one held-out batch fell back to teacher forcing
+    e = plateau_epoch(hist, rule)
+    assert e == 8 + 11 and not convergence_record(hist[:27], rule)["converged"]
 
 
 def test_a_method_without_a_rule_never_converges():
@@ -132,8 +145,9 @@ def test_method_rules():
         gen.config = cls.Config(**cfg)
         return gen.plateau_rule()
 
-    assert rule_of("marionet", ss_activate_epoch=3, ss_accomplish_epoch=10).start_epoch == 10
-    assert rule_of("marionet").metric == "val_mpjpe"
+    r = rule_of("marionet", ss_activate_epoch=3, ss_accomplish_epoch=10)
+    assert (r.metric, r.gate, r.start_epoch) == ("val_loss", "val_ss_active", 10)
+    assert rule_of("marionet", scheduled_sampling=False) == PlateauRule()
     assert rule_of("macvae").metrics == ("val_loss", "val_kl")
     assert rule_of("actor").metrics == ("val_loss", "val_kl")
     assert rule_of("act_mocogan").metrics == ()

@@ -381,16 +381,19 @@ class MarioNet(Generator):
                 "lambda1": f(lam1), "lambda2": f(lam2)}
 
     def plateau_rule(self):
-        """The convergence rule (issue 32) reads the held-out ``val_mpjpe`` (metres, of the
-        teacher-forced first pass), not ``val_loss``: scheduled sampling (supp. Sec. 3) moves
-        the loss's weights λ1/λ2 and its second pass's share ξ, so the loss changes meaning
-        between the activate and accomplish epochs while the first pass's error does not.  It
-        counts only from ``ss_accomplish_epoch``: before it, the second pass's growing share
-        moves the gradient the first pass gets, so the same quantity is not yet comparable."""
+        """The convergence rule (issue 32).  Scheduled sampling (supp. Sec. 3) moves the loss's
+        weights (λ1 = 1, λ2 = 0 before it is active; 0.1 and 0.9 after) and the second pass's
+        share ξ between the activate and accomplish epochs, so ``val_loss`` has one meaning
+        only from ``ss_accomplish_epoch`` (ξ = 1), and only on epochs where sampling was active
+        on every held-out batch (``val_ss_active`` = 1: the gate); the rule reads it there.
+        The teacher-forced first pass's ``val_mpjpe`` would keep its meaning throughout, but it
+        carries a tenth of the loss once sampling is active and may rise while the model
+        improves.  Without scheduled sampling (an ablation) the loss never changes meaning."""
         from repro.train.plateau import PlateauRule
 
-        return PlateauRule(metric="val_mpjpe",
-                           start_epoch=int(self.config.ss_accomplish_epoch))
+        if not self.config.scheduled_sampling:
+            return PlateauRule()
+        return PlateauRule(gate="val_ss_active", start_epoch=int(self.config.ss_accomplish_epoch))
 
     def fit(self, train_items: ActionItems, *, seed: int, ckpt_dir: str | Path | None = None,
             on_epoch: Callable[[int, dict[str, float]], None] | None = None,

@@ -19,7 +19,8 @@ with byte-identical weights to an uninterrupted run.  Checkpoints are written at
 History: one record per epoch, the means over its batches of the scalars ``step`` returned,
 plus ``epoch`` and ``batches`` (optimiser steps in the epoch).  With ``validate(model, epoch)``
 the loop also calls it after each epoch's optimisation, in eval mode, under ``no_grad`` and
-with the global torch RNG forked and seeded from ``(seed, "validation", epoch)``, and stores
+with the global torch RNG forked and seeded from ``(seed, "validation")`` (the same draws every
+epoch, so the curve moves with the model only), and stores
 what it returns with a ``val_`` prefix: validation never moves the training's random stream,
 so the weights (and exact resume) are the same with or without it.  The history is in the
 checkpoint, so a resumed run's curve is the uninterrupted run's.
@@ -328,14 +329,17 @@ def _float_sum(values: list) -> float:
 
 def _validation(model, validate, seed: int, epoch: int) -> dict[str, float]:
     """``validate(model, epoch)`` in eval mode, without gradients, on a forked global RNG seeded
-    from ``(seed, "validation", epoch)``; its scalars with a ``val_`` prefix.  The caller puts
-    the model back in train mode at the next epoch."""
+    from ``(seed, "validation")`` — the same draws every epoch (reparameterisation noise,
+    teacher-forcing masks, A2M's self-feeding coin), so the curve moves only with the model and
+    the convergence rule (:mod:`repro.train.plateau`) does not read draw-to-draw noise as a
+    plateau; the training's own RNG is untouched (forked).  Its scalars with a ``val_``
+    prefix.  The caller puts the model back in train mode at the next epoch."""
     import torch
 
     devices = (list(range(torch.cuda.device_count()))
                if torch.cuda.is_available() and torch.cuda.is_initialized() else [])
     with torch.random.fork_rng(devices=devices):
-        torch.manual_seed(derive_seed(seed, "validation", epoch))
+        torch.manual_seed(derive_seed(seed, "validation"))
         model.eval()
         with torch.no_grad():
             out = validate(model, epoch) or {}

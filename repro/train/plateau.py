@@ -17,22 +17,29 @@ At epoch *e* (0-based), with each quantity smoothed by a trailing mean over ``sm
 (``s``), and ``w = max(min_window, ceil(window_share · (e + 1)))`` epochs per window:
 
     converged at e  ⇔  the last two windows of ``w`` epochs lie wholly at or after
-                        ``start_epoch`` + ``smooth`` − 1, and
-                        mean(s over the window before) − mean(s over the last window)
-                            ≤ tolerance · |mean(s over the window before)|
+                        ``start_epoch`` + ``smooth`` − 1, and, with ``b`` and ``l`` the means
+                        of s over the window before and over the last window,
+                        b − l < tolerance · max(|b|, atol)
 
-i.e. the smoothed quantity improved by at most ``tolerance`` (1 %) over the last ``w`` epochs
-(20 % of the run, at least 5), window mean against window mean.  Means, not best values: a
-curve still falling by a few per cent per window under epoch-to-epoch noise (the held-out
-draws are seeded per epoch) must not fire because one lucky early epoch stands as the best; a
-window mean averages ``w`` epochs of noise away.  A rising curve (over-fitting) and a flat one
-fire; a curve still falling by more than 1 % per window does not.  Every smoothed value in both
-windows must be finite (a window that holds a NaN epoch never fires).
+i.e. the smoothed quantity improved by less than ``tolerance`` (1 %) over the last ``w``
+epochs (20 % of the run, at least 5), window mean against window mean (``atol``, 1e-6, only
+keeps a quantity at zero from never firing).  Means, not best values: a curve still falling by
+a few per cent per window under epoch-to-epoch noise must not fire because one lucky early
+epoch stands as the best; a window mean averages ``w`` epochs of noise away.  (The held-out
+quantity is measured with the same random draws every epoch — :func:`repro.train.loop` seeds
+validation once per training — so what noise remains is the model's own, not the draws'.)  A
+rising curve (over-fitting) and a flat one fire; a curve still falling by more than 1 % per
+window does not.  Every smoothed value in both windows must be finite (a window that holds a
+NaN epoch never fires).
 
-A rule may read several quantities (``also``): it fires only when each one does.  MACVAE and
-ACTOR weight their KL term by 1e-5, so ``val_loss`` is almost all reconstruction and says
-nearly nothing about the learned prior the generator samples from; their rules also read
-``val_kl``.  A method with no held-out quantity that measures its generator (an adversarial
+A rule may read further quantities (``also``), which must *stay* within the tolerance in both
+directions: |b − l| < tolerance · max(|b|, atol); it fires only when every quantity does.
+MACVAE and ACTOR weight their KL term by 1e-5, so ``val_loss`` is almost all reconstruction and
+says nearly nothing about the posterior's distance from the prior the generator samples from;
+their rules also read ``val_kl``, and a KL still rising (posteriors drifting from the prior)
+holds the rule back as one still falling does.  A rule may name a ``gate``: an epoch counts
+only where that quantity is 1 (MarioNet's ``val_ss_active``: its loss has one meaning only
+while scheduled sampling is active on every held-out batch).  A method with no held-out quantity that measures its generator (an adversarial
 one: Act-MoCoGAN) has ``metric = None``: its rule never fires, and it trains to its cap.
 
 :func:`plateau_epoch` returns the first epoch at which the rule fires, so a training that stops
@@ -47,6 +54,9 @@ import math
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+
 #: what :func:`criterion_text` and the records call the rule
 RULE_NAME = "plateau"
 
@@ -58,7 +68,9 @@ class PlateauRule:
 
     metric: str | None = "val_loss"
     also: tuple[str, ...] = ()
+    gate: str | None = None
     tolerance: float = 0.01
+    atol: float = 1e-6
     window_share: float = 0.2
     min_window: int = 5
     smooth: int = 3
@@ -69,6 +81,8 @@ class PlateauRule:
             raise ValueError(f"plateau tolerance must lie in (0, 1), got {self.tolerance!r}")
         if not (0.0 <= self.window_share < 1.0):
             raise ValueError(f"plateau window_share must lie in [0, 1), got {self.window_share!r}")
+        if not self.atol > 0.0:
+            raise ValueError(f"plateau atol must be > 0, got {self.atol!r}")
         if self.min_window < 1 or self.smooth < 1 or self.start_epoch < 0:
             raise ValueError("plateau min_window and smooth must be ≥ 1, start_epoch ≥ 0")
 
@@ -94,49 +108,41 @@ def window(rule: PlateauRule, epochs_seen: int) -> int:
     return max(rule.min_window, math.ceil(rule.window_share * epochs_seen - 1e-9))
 
 
-def _series(history: list[dict], metric: str) -> list[float]:
-    out = []
-    for h in history:
+def _series(history: list[dict], metric: str, gate: str | None = None) -> np.ndarray:
+    """The metric per record (NaN where missing or not finite, or where the gate is not 1)."""
+    out = np.full(len(history), np.nan)
+    for i, h in enumerate(history):
         v = h.get(metric) if isinstance(h, dict) else None
-        out.append(float(v) if isinstance(v, (int, float)) and math.isfinite(float(v))
-                   else math.nan)
+        if gate is not None and (not isinstance(h, dict) or h.get(gate) != 1.0):
+            continue
+        if isinstance(v, (int, float)) and math.isfinite(float(v)):
+            out[i] = float(v)
     return out
 
 
-def _smoothed(values: list[float], k: int) -> list[float]:
-    """Trailing mean over ``k`` epochs (NaN until ``k`` values, or where any is NaN)."""
-    out = []
-    for i in range(len(values)):
-        part = values[max(0, i - k + 1): i + 1]
-        out.append(sum(part) / k if len(part) == k and all(math.isfinite(x) for x in part)
-                   else math.nan)
-    return out
-
-
-def _best(values: list[float]) -> float:
-    finite = [x for x in values if math.isfinite(x)]
-    return min(finite) if finite else math.nan
-
-
-def _fires_on(series: list[float], rule: PlateauRule, epoch: int) -> bool:
-    s = _smoothed(series[: epoch + 1], rule.smooth)
+def _fires_on(history: list[dict], metric: str, rule: PlateauRule, epoch: int,
+              two_sided: bool) -> bool:
     w = window(rule, epoch + 1)
     first = epoch - 2 * w + 1  # the window before's first epoch
     if first < rule.start_epoch + rule.smooth - 1:
         return False  # two whole comparable windows are not there yet
-    before, last = s[first: first + w], s[first + w: epoch + 1]
-    if not all(math.isfinite(x) for x in before + last):
+    # only the epochs the two windows' trailing means read: O(w) per call
+    v = _series(history[first - rule.smooth + 1: epoch + 1], metric, rule.gate)
+    s = sliding_window_view(v, rule.smooth).mean(axis=1)  # NaN where any epoch is NaN
+    if not np.isfinite(s).all():
         return False  # a window with a missing or non-finite value never fires
-    m_before, m_last = sum(before) / w, sum(last) / w
-    return (m_before - m_last) <= rule.tolerance * abs(m_before)
+    b, last = float(s[:w].mean()), float(s[w:].mean())
+    change = abs(b - last) if two_sided else b - last
+    return change < rule.tolerance * max(abs(b), rule.atol)
 
 
 def fires_at(history: list[dict], rule: PlateauRule, epoch: int) -> bool:
     """Whether the rule fires at ``epoch`` reading ``history[: epoch + 1]``: on every
     quantity it reads (never, for a rule that reads none)."""
-    if not rule.metrics or epoch < 0:
+    if not rule.metrics or epoch < 0 or epoch >= len(history):
         return False
-    return all(_fires_on(_series(history, m), rule, epoch) for m in rule.metrics)
+    return (_fires_on(history, rule.metric, rule, epoch, two_sided=False)
+            and all(_fires_on(history, m, rule, epoch, two_sided=True) for m in rule.also))
 
 
 def plateau_epoch(history: list[dict], rule: PlateauRule) -> int | None:
@@ -154,10 +160,11 @@ def criterion_text(rule: PlateauRule) -> str:
         return ("none: no held-out quantity measures this method's generator (adversarial "
                 "training); it trains to its cap and never counts as converged")
     start = (f", after the first {rule.start_epoch} epochs" if rule.start_epoch else "")
-    names = " and ".join(rule.metrics)
-    return (f"{names} ({rule.smooth}-epoch mean{start}): mean of the last max("
-            f"{rule.min_window}, {rule.window_share:.0%}) epochs improved ≤ "
-            f"{rule.tolerance:.0%} on the window before")
+    gate = (f", on epochs with {rule.gate} = 1" if rule.gate else "")
+    also = "".join(f"; {m} changed < {rule.tolerance:.0%} either way" for m in rule.also)
+    return (f"{rule.metric} ({rule.smooth}-epoch mean{start}{gate}): mean of the last max("
+            f"{rule.min_window}, {rule.window_share:.0%}) epochs improved < "
+            f"{rule.tolerance:.0%} on the window before{also}")
 
 
 def convergence_record(history: list[dict], rule: PlateauRule, stopped_by: str | None = None
