@@ -280,6 +280,9 @@ def test_verdicts_at_convergence():
     assert qualified_verdict("inconclusive", e) == "inconclusive"
     assert qualified_verdict("supported", ev(both, retrain=False)) == \
         "supported at convergence on the stand-in (sampling variance only)"
+    # one training per row cannot contradict: another seed could reverse the ordering
+    assert qualified_verdict("contradicted", ev(both, retrain=False)) == \
+        "not reproduced at convergence on the stand-in (sampling variance only)"
     # one row cut by the time cap: as before (the budget decides a contradiction)
     half = [_training("a", "plateau", True), _training("b", "plateau", False, stopped_by="time")]
     e = ev(half)
@@ -294,6 +297,14 @@ def test_verdicts_at_convergence():
     assert qualified_verdict("supported", e) == "supported"
     # no trained row: None
     assert ev(both, rows=("real",))["converged"] is None
+    # the evaluators of a converged comparison are named as trained for fixed epochs
+    from repro.engine.tables import row_convergence as rc
+
+    with_eval = claim_evidence(rows=["a", "b"], budgets=budgets, retrain=True, replicates=3,
+                               evaluators=["transformer seed 0 (trained on the stand-in)"],
+                               scale="converged", convergence=rc(both), dataset="bandai2")
+    assert "evaluators below are trained for their profile's fixed number of epochs" in \
+        with_eval["text"]
 
 
 def test_curve_text_says_when_the_rule_fired():

@@ -229,7 +229,11 @@ def claim_evidence(*, rows: list[str], budgets: dict[str, dict | None], retrain:
     else:
         parts.append("budget: no trained row involved")
     if trained:
-        parts.append(convergence_text(conv, scale))
+        text = convergence_text(conv, scale)
+        if converged and evaluators:
+            text += ("; the evaluators below are trained for their profile's fixed number of "
+                     "epochs, not by the rule")
+        parts.append(text)
     if evaluators:
         parts.append("evaluator: " + "; ".join(evaluators))
     return {"variance": "training" if retrain else "sampling", "replicates": replicates,
@@ -288,11 +292,16 @@ def qualified_verdict(verdict: str, evidence: dict) -> str:
     """The verdict the evidence allows (module docstring): a posterior "contradicted" below
     the paper's budget, or without training-seed variance, is "not reproduced", qualified;
     where every training involved reached its plateau, "supported"/"contradicted" read "at
-    convergence on the stand-in" (issue 32), with "(sampling variance only)" without
-    ``--retrain``."""
+    convergence on the stand-in" (issue 32).  Convergence answers the budget, not the seed: a
+    contradiction from one training per row (no ``--retrain``) is still "not reproduced", as
+    another training seed could reverse the ordering — "not reproduced at convergence on the
+    stand-in (sampling variance only)"; a supported claim says "(sampling variance only)"."""
     if evidence.get("converged") and verdict in (SUPPORTED, CONTRADICTED):
         where = evidence.get("where") or "the stand-in"
-        tail = "" if evidence.get("variance") == "training" else " (sampling variance only)"
+        seeds = evidence.get("variance") == "training"
+        if verdict == CONTRADICTED and not seeds:
+            return f"not reproduced {AT_CONVERGENCE} on {where} (sampling variance only)"
+        tail = "" if seeds else " (sampling variance only)"
         return f"{verdict} {AT_CONVERGENCE} on {where}{tail}"
     if verdict != CONTRADICTED or not evidence.get("trained_rows"):
         return verdict  # (a claim among untrained rows is decided by the data alone)
