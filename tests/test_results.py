@@ -415,3 +415,79 @@ def test_current_quick_records_were_made_under_the_pin():
         assert k["mode"] == "pinned" and k["version"] >= 1, rj["run_id"]
         base = load_baseline(repo_root() / "tables" / "baselines" / "quick", rj["table"])
         assert base["kernels"] == k  # the baseline names the run's pin and CPU
+
+
+# -- at convergence (issue 32): the page opens with the claims of the converged run -------------
+CONVERGED = _records("converged")
+#: the specs the converged run covers (the others are named on the page as not run)
+CONVERGED_TABLES = {"marionette/table1", "multiact/table2", "odmo/table3"}
+
+
+def test_there_are_converged_records_one_table_per_paper():
+    assert {_run(p)[0]["table"] for p in CONVERGED} == CONVERGED_TABLES
+
+
+@pytest.mark.parametrize("path", CONVERGED, ids=[p.name for p in CONVERGED])
+def test_converged_record_is_its_values_and_trained_until_the_plateau(path):
+    rj, summary = _run(path)
+    assert rj["status"] == "FINISHED" and rj["scale"] == "converged"
+    assert rj["dataset"] == "bandai2"
+    _cells_are_their_values(path, summary, len(rj["config"]["seeds"]))
+    for t in json.loads((path / "trainings.json").read_text())["trainings"]:
+        rec = t["training"] or {}
+        if rec.get("epochs") is None:
+            continue  # the retrieval reference indexes, it does not train
+        conv = rec["convergence"]
+        assert rec["until"] == "plateau" and rec["schema"] == 3, t["row"]
+        # converged exactly when the rule stopped it, at the epoch it first fired
+        assert conv["converged"] == (conv["stopped_by"] == "plateau"), t["row"]
+        if conv["converged"]:
+            assert len(rec["history"]) == conv["converged_epoch"] + 1 < rec["epochs"] + 1
+
+
+def _converged_home(tmp_path, monkeypatch) -> None:
+    from cli.main import main
+
+    home = tmp_path / "home"
+    for p in CONVERGED:
+        shutil.copytree(p, home / "runs" / p.name)
+    monkeypatch.setenv("REPRO_HOME", str(home))
+    assert main(["runs", "reindex"]) == 0
+
+
+def test_results_page_opens_with_the_claims_at_convergence(tmp_path, monkeypatch, capsys):
+    from repro.engine.claims_list import list_claims, render_claims
+
+    _converged_home(tmp_path, monkeypatch)
+    capsys.readouterr()
+    entries = list_claims(scale="converged")
+    page = "\n".join(ln.rstrip() for ln in
+                     (repo_root() / "docs" / "results.md").read_text().splitlines())
+    block = "\n".join(ln.rstrip() for ln in render_claims(entries, "md").strip().splitlines())
+    assert block in page
+    first_section = page.index("\n## ")
+    assert page.index(block) < page.index("\n## ", first_section + 1), \
+        "the claims page is not the page's first section"
+    # every claim of every spec is listed; those of the specs not run read "not run", and the
+    # page names those specs
+    ran = [e for e in entries if e["table"] in CONVERGED_TABLES]
+    assert ran and all(e["verdict"] != "not run" for e in ran)
+    for e in entries:
+        if e["table"] not in CONVERGED_TABLES:
+            assert e["verdict"] == "not run" and f"`{e['table']}`" in page
+
+
+def test_converged_tables_and_curves_are_on_the_page(tmp_path, monkeypatch):
+    from repro.report.curves import format_learning_curve
+
+    _page_prints([("converged", p) for p in CONVERGED], tmp_path, monkeypatch)
+    page = "\n".join(ln.rstrip() for ln in
+                     (repo_root() / "docs" / "results.md").read_text().splitlines())
+    for p in CONVERGED:
+        table = _run(p)[0]["table"]
+        png = RESULTS / "converged" / "curves" / (table.replace("/", "-") + ".png")
+        assert png.is_file() and f"results/converged/curves/{png.name}" in page
+        for t in json.loads((p / "trainings.json").read_text())["trainings"]:
+            if (t["training"] or {}).get("history"):
+                curve = "\n".join(ln.rstrip() for ln in format_learning_curve(t["training"]))
+                assert curve in page, f"learning curve of {table} {t['row']} missing"
