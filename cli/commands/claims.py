@@ -17,8 +17,9 @@ def register(sub) -> None:
     p.add_argument("tables", nargs="*", metavar="TABLE",
                    help="only these tables (default: every spec)")
     p.add_argument("--scale", default=None,
-                   help="quick | medium | paper: read the run `repro show TABLE --scale S` "
-                   "shows (default: the newest finished run at any scale)")
+                   help="quick | medium | paper | converged: read the run `repro show TABLE "
+                   "--scale S` shows (default: the newest finished run at any scale, so "
+                   "profiles may mix: name one to compare like with like)")
     p.add_argument("--format", default="term", choices=CLAIMS_FORMATS,
                    help="term | md | json | csv (default term)")
     p.set_defaults(func=cmd_claims)
