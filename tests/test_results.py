@@ -522,3 +522,17 @@ def test_converged_page_lists_every_training_and_its_verdicts_follow_it():
             assert ("at convergence" in c["verdict"]) == bool(ev.get("converged")), c["id"]
             if ev.get("converged") is False:
                 assert "not every training reached its plateau" in ev["text"]
+
+
+def test_converged_history_record_with_actors_old_cap():
+    """The first multiact/table2 record at converged (ACTOR's cap 100, before it was raised):
+    kept as history, consistent with its values; ACTOR ran into that cap."""
+    (path,) = _records("converged-actor-cap-100")
+    rj, summary = _run(path)
+    assert rj["status"] == "FINISHED" and rj["scale"] == "converged"
+    assert rj["table"] == "multiact/table2"
+    _cells_are_their_values(path, summary, len(rj["config"]["seeds"]))
+    actor = [t["training"] for t in json.loads((path / "trainings.json").read_text())["trainings"]
+             if t["method"] == "actor"][0]
+    assert actor["epochs"] == 100 and len(actor["history"]) == 100
+    assert actor["convergence"]["stopped_by"] == "epochs" and actor["seconds"] < 120

@@ -273,8 +273,10 @@ def convergence_text(conv: dict[str, dict | None], scale: str | None = None) -> 
             why.append(f"{r} (a fixed number of epochs)")
         else:
             stops = sorted({words.get(x, str(x)) for x in c["stopped_by"] if x != "plateau"})
-            why.append(f"{r} ({c['converged']} of {c['trainings']} at the plateau; "
-                       f"the others stopped by {', '.join(stops) or 'nothing recorded'})")
+            by = ", ".join(stops) or "nothing recorded"
+            why.append(f"{r} (stopped by {by}, not at its plateau)" if c["trainings"] == 1
+                       else f"{r} ({c['converged']} of {c['trainings']} at the plateau; "
+                            f"the others stopped by {by})")
     return "convergence: not every training reached its plateau: " + "; ".join(why)
 
 

@@ -6,12 +6,11 @@ compared at an arbitrary point of its curve.  None of the three papers states a 
 (Neural Marionette supp. Sec. 3 trains a fixed 1,000 epochs; MultiAct's released code 1,200;
 ODMO's 100,000), so the rule is ours, and it is the same for every method.
 
-The rule reads one per-epoch quantity measured on the held-out share of the *training* split
-(:mod:`repro.train.validation`; never test data): ``val_loss`` by default, or a quantity that
-keeps its meaning when the loss itself changes meaning mid-training (MarioNet's scheduled
-sampling mixes two losses with a moving weight, so its rule reads ``val_mpjpe``; a rule may also
-name the first epoch from which its quantity is comparable, ``start_epoch``: after a
-teacher-forcing decay or a scheduled-sampling ramp has finished).
+The rule reads a per-epoch quantity measured on the held-out share of the *training* split
+(:mod:`repro.train.validation`; never test data): ``val_loss`` by default, read only from the
+first epoch at which it keeps one meaning, ``start_epoch`` (after ODMO's teacher-forcing decay;
+after MarioNet's scheduled-sampling ramp, whose loss mixes two passes with moving weights until
+then), and, with a ``gate``, only on epochs where the gate quantity is 1.
 
 At epoch *e* (0-based), with each quantity smoothed by a trailing mean over ``smooth`` epochs
 (``s``), and ``w = max(min_window, ceil(window_share · (e + 1)))`` epochs per window:
