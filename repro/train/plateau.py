@@ -38,8 +38,9 @@ says nearly nothing about the posterior's distance from the prior the generator 
 their rules also read ``val_kl``, and a KL still rising (posteriors drifting from the prior)
 holds the rule back as one still falling does.  A rule may name a ``gate``: an epoch counts
 only where that quantity is 1 (MarioNet's ``val_ss_active``: its loss has one meaning only
-while scheduled sampling is active on every held-out batch).  A method with no held-out quantity that measures its generator (an adversarial
-one: Act-MoCoGAN) has ``metric = None``: its rule never fires, and it trains to its cap.
+while scheduled sampling is active on every held-out batch).  A method with no held-out
+quantity that measures its generator (an adversarial one: Act-MoCoGAN) has ``metric = None``:
+its rule never fires, and it trains to its cap.
 
 :func:`plateau_epoch` returns the first epoch at which the rule fires, so a training that stops
 there and a longer one that is read afterwards agree on when it first converged; a record's
