@@ -334,4 +334,34 @@ def test_train_jobs_carry_the_schedule_only_when_training_until_the_plateau():
     conv = train_configs("converged")
     assert quick and all("schedule" not in c for c in quick)
     assert conv and all(c["schedule"]["until"] == "plateau" for c in conv)
-    assert conv[0]["schedule"]["max_minutes"] == 20.0
+    caps = {c["method"]: c["schedule"]["max_minutes"] for c in conv}
+    assert caps == {"macvae": 20.0, "actor": 90.0}  # ACTOR's own cap (method_max_minutes)
+    assert all("method_max_minutes" not in c["schedule"] for c in conv)
+
+
+def test_a_method_cap_changes_only_that_methods_schedule(tmp_path):
+    from repro.specs.scales import resolve_scale, scales_path
+
+    text = scales_path().read_text()
+    conv = resolve_scale("converged")
+    assert conv.schedule_for("marionet")["max_minutes"] == 180.0
+    assert conv.schedule_for("odmo")["max_minutes"] == 20.0
+    assert resolve_scale("quick").schedule_for("marionet") is None
+    # without the table, every method's schedule is the profile's, as before the option
+    plain = tmp_path / "scales.toml"
+    plain.write_text(text.replace("method_max_minutes = {", "# method_max_minutes = {"))
+    sched = resolve_scale("converged", path=plain).schedule_for("marionet")
+    assert sched["max_minutes"] == 20.0 and "method_max_minutes" not in sched
+    assert sched == resolve_scale("converged", path=plain).schedule_for("odmo")
+
+
+def test_a_misspelt_method_in_the_caps_is_named_with_a_suggestion(tmp_path):
+    from repro.specs.load import SpecValidationError
+    from repro.specs.scales import resolve_scale, scales_path
+
+    bad = tmp_path / "scales.toml"
+    bad.write_text(scales_path().read_text().replace("marionet = 180.0", "marionett = 180.0"))
+    with pytest.raises(SpecValidationError) as err:
+        resolve_scale("converged", path=bad)
+    assert "method_max_minutes: unknown method 'marionett' (did you mean 'marionet'?)" in \
+        str(err.value)

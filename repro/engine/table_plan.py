@@ -316,7 +316,8 @@ def _train_job(pl: _Planner, b: Band, seed: int, method: str, method_cfg: dict,
     """One training of ``method`` for band ``b``: keyed by how the training items are made,
     not by the protocol, so a model serves every table whose protocols make items the same
     way."""
-    schedule = getattr(pl.scale, "schedule", None)  # until a plateau (issue 32); else absent
+    per_method = getattr(pl.scale, "schedule_for", None)  # until a plateau (issue 32)
+    schedule = per_method(method) if per_method is not None else None
     return pl.job("train", f"{STEPS}:train_method",
                   {"dataset": pl.dataset, "items": b.item_source, "method": method,
                    "method_config": method_cfg, "validation": pl.validation,

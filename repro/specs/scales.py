@@ -70,6 +70,19 @@ class PlateauSettings(BaseModel):
     smooth: int = Field(3, ge=1, description="epochs of the trailing mean")
     max_minutes: float | None = Field(None, gt=0.0, description="time cap of one training "
                                       "(cumulative over resumes); None: the epoch cap only")
+    method_max_minutes: dict[str, float] = Field(default_factory=dict, description=(
+        "a method's own time cap in place of max_minutes (a method whose epoch costs minutes "
+        "needs hours to reach its plateau where the others need minutes)"))
+
+    @field_validator("method_max_minutes")
+    @classmethod
+    def _known_methods(cls, v: dict[str, float]) -> dict[str, float]:
+        for m, minutes in v.items():
+            if m not in names.METHODS:
+                raise ValueError(names.unknown_name_message("method", m))
+            if not minutes > 0:
+                raise ValueError(f"method_max_minutes.{m} must be > 0, got {minutes!r}")
+        return v
 
 
 Scalar = Union[StrictBool, StrictInt, StrictFloat, StrictStr]
@@ -180,6 +193,18 @@ class ResolvedScale:
         """What a train job's ``schedule`` holds (``until = "plateau"`` and the rule's
         settings, :func:`repro.engine.steps.stopping_of`), or None for fixed epochs."""
         return json.loads(self._schedule) if self._schedule else None
+
+    def schedule_for(self, method: str) -> dict[str, Any] | None:
+        """The ``schedule`` of one training of ``method`` (a train job's key holds it): the
+        profile's, with the method's own time cap (``method_max_minutes``) in ``max_minutes``
+        and the table of caps left out, so a method's key changes only with its own cap."""
+        sched = self.schedule
+        if sched is None:
+            return None
+        caps = sched.pop("method_max_minutes", None) or {}
+        if method in caps:
+            sched["max_minutes"] = caps[method]
+        return sched
 
     # -- the free tables, as fresh plain dicts ---------------------------------------------
 
