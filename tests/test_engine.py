@@ -600,3 +600,23 @@ def test_rich_progress_hook_runs(jobs_module):
         execute(jobs_module.graph(), hook=hook)
     text = console.export_text()
     assert "3 jobs: 0 cached, 3 to run" in text and "train/s0: computed" in text
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_tasks_beside_the_graph_run_and_report_their_errors(jobs_module, jobs):
+    """``execute(beside=...)``: a run's evaluators train in the graph's own pool, queued before
+    its jobs (issue 32: an evaluator alone left a core idle); each task's outcome is reported
+    (None, or its error) and ``on_beside`` hears each as it ends; the jobs are unaffected."""
+    import functools
+
+    targets = jobs_module.graph(seeds=(0, 1), steps=2)
+    heard = []
+    report = execute(targets, jobs=jobs, beside=[functools.partial(time.sleep, 0.2),
+                                                 functools.partial(int, "x")],
+                     on_beside=lambda i, err: heard.append((i, err)))
+    assert report.beside[0] is None and report.beside[1].startswith("ValueError: ")
+    assert sorted(heard) == [(0, None), (1, report.beside[1])]
+    assert report.counts == {COMPUTED: len(report.results)}
+    # nothing to run in the graph: the tasks still run (in a pool of ``jobs`` workers)
+    again = execute(targets, jobs=jobs, beside=[functools.partial(int, "7")])
+    assert again.all_hits and again.beside == [None]

@@ -259,6 +259,29 @@ def test_several_tables_run_as_one_graph_with_a_record_each(tiny_tables, _repro_
     assert alone["cells"] == s1["cells"] and set(alone["counts"]) == {"hit"}
 
 
+def test_with_two_jobs_the_trainings_run_beside_the_evaluator(tiny_tables, _repro_home,
+                                                               tmp_path, monkeypatch, capsys):
+    from repro.engine.runner import run_table, run_tables
+
+    ((_, two, run2),) = run_tables(["marionette/table1"], scale="quick", jobs=2,
+                                   progress=False, lines=True)
+    err = capsys.readouterr().err
+    assert "1 evaluator(s), 1 training(s) and 3 other job(s) that need no evaluator, on 2 " \
+        "worker(s)" in err
+    assert "evaluator trained [" in err
+    assert err.index("evaluator trained [") < err.index("gate")  # before the gate and graph
+    rec = json.loads((_repro_home / "runs" / run2 / "run.json").read_text())
+    trains = [j for j in rec["jobs"] if j["kind"] == "train"]
+    assert [j["status"] for j in trains] == ["computed"]  # trained once, counted as computed
+    assert trains[0]["key"] in rec["keys"]["written"] and trains[0]["key"] not in rec["keys"]["read"]
+    assert len(rec["jobs"]) == len({j["key"] for j in rec["jobs"]})  # one line a job
+    assert two["counts"] == {"computed": len(rec["jobs"])}
+    # the same numbers as one job at a time, in a store of its own
+    monkeypatch.setenv("REPRO_HOME", str(tmp_path / "other"))
+    _, one, _ = run_table("marionette/table1", scale="quick", progress=False)
+    assert one["cells"] == two["cells"] and one["counts"] == two["counts"]
+
+
 def test_corrupt_object_is_detected_and_rebuilt(tiny_tables, _repro_home):
     from repro.engine.runner import run_table
 

@@ -45,22 +45,18 @@ def evaluators(plan, *, train: bool, progress: bool, weights: bool = True, rec=N
     return out
 
 
-def _train_one_evaluator(cfg: dict) -> str:
-    """Worker of :func:`train_evaluators_side_by_side` (a top-level function: picklable)."""
+def train_one_evaluator(cfg: dict) -> str:
+    """Train (or load) one evaluator in a worker process and describe it: the task of
+    :func:`train_evaluators_side_by_side` and of a run's evaluators beside its trainings (a
+    top-level function: picklable)."""
     from repro.engine.steps import evaluator_for
 
     return evaluator_for(cfg).describe()
 
 
-def train_evaluators_side_by_side(plans, jobs: int, progress: bool, log=None) -> frozenset:
-    """Train the evaluators the plans need and the store lacks, up to ``jobs`` at a time in
-    worker processes (each trains with its settings' fixed thread count, so the weights are the
-    same as one after another); :func:`evaluators` then loads them.  A failure is left for
-    the sequential pass to raise in the parent, with its usual message.  Returns the store
-    keys of those trained here (the run records count them as written)."""
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
-
+def evaluators_to_train(plans) -> dict[str, dict]:
+    """The evaluators the plans need (those with jobs to run) and the store lacks: store key ->
+    the band's step config that trains it (:func:`repro.engine.steps.evaluator_for`)."""
     from repro.store.objects import Store
 
     store, todo = Store(), {}
@@ -72,6 +68,21 @@ def train_evaluators_side_by_side(plans, jobs: int, progress: bool, log=None) ->
                 continue
             if store.get(b.evaluator_key) is None:
                 todo[b.evaluator_key] = b.step_config(p.dataset, with_evaluator=True)
+    return todo
+
+
+def train_evaluators_side_by_side(plans, jobs: int, progress: bool, log=None) -> frozenset:
+    """Train the evaluators the plans need and the store lacks, up to ``jobs`` at a time in
+    worker processes (each trains with its settings' fixed thread count, so the weights are the
+    same as one after another); :func:`evaluators` then loads them.  A failure is left for
+    the sequential pass to raise in the parent, with its usual message.  Returns the store
+    keys of those trained here (the run records count them as written); with fewer than two
+    to train, nothing (the sequential pass trains it).  A run with trainings to do trains its
+    evaluators beside them instead (:func:`repro.engine.runner.run_tables`)."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    todo = evaluators_to_train(plans)
     if len(todo) < 2:
         return frozenset()
     if progress:
@@ -80,7 +91,7 @@ def train_evaluators_side_by_side(plans, jobs: int, progress: bool, log=None) ->
     done = set()
     with ProcessPoolExecutor(max_workers=min(jobs, len(todo)),
                              mp_context=mp.get_context("spawn")) as pool:
-        futures = {key: pool.submit(_train_one_evaluator, cfg) for key, cfg in todo.items()}
+        futures = {key: pool.submit(train_one_evaluator, cfg) for key, cfg in todo.items()}
         for key, f in futures.items():
             try:
                 f.result()

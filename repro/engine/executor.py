@@ -49,7 +49,7 @@ import queue
 import signal
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -88,6 +88,8 @@ class ExecutionReport:
 
     results: list[JobResult] = field(default_factory=list)
     interrupted: bool = False
+    #: per task of ``execute(beside=...)``, in order: None when it returned, else its error
+    beside: list[str | None] = field(default_factory=list)
 
     def result(self, job_or_key: Job | str) -> JobResult:
         k = job_or_key.key() if isinstance(job_or_key, Job) else job_or_key
@@ -171,7 +173,8 @@ def _sigterm_as_interrupt(flag: dict):
 def execute(targets: Iterable[Job], *, store: Store | None = None, jobs: int = 1,
             force: bool | str | Iterable[str] | None = None, hook: ProgressHook | None = None,
             recorder=None, threads_per_job: int | None = None,
-            keep_going: bool = False, backend=None) -> ExecutionReport:
+            keep_going: bool = False, backend=None, beside: Sequence[Callable[[], Any]] = (),
+            on_beside: Callable[[int, str | None], None] | None = None) -> ExecutionReport:
     """Run the graph reaching ``targets`` and return every job's (key, status, seconds, object).
 
     ``force``: ``True`` recomputes everything, a kind/label (or several) recomputes those.
@@ -183,6 +186,11 @@ def execute(targets: Iterable[Job], *, store: Store | None = None, jobs: int = 1
     :class:`repro.engine.ray_executor.RayBackend`; called as ``backend(store, hook, by_key,
     threads_per_job)`` only when there is something to run, it returns a context manager that
     yields a :class:`Backend` (``jobs`` then does not apply).
+    ``beside``: picklable callables that are not jobs (a run's evaluators) computed in the same
+    process pool as the graph, queued before its jobs, so ``jobs`` workers stay busy while
+    either has work (``jobs=1`` or a ``backend``: one after another here, before the graph);
+    :attr:`ExecutionReport.beside` holds None or the error of each, ``on_beside(i, error)`` is
+    called as each ends.  An interrupt stops them with the graph.
     """
     store = store or Store()
     hook = hook or ProgressHook()
@@ -219,7 +227,8 @@ def execute(targets: Iterable[Job], *, store: Store | None = None, jobs: int = 1
         with _sigterm_as_interrupt(flag):
             _run_jobs(to_run, dec, results, finish, store=store, hook=hook, by_key=by_key,
                       jobs=jobs, threads_per_job=threads_per_job, keep_going=keep_going,
-                      backend=backend, flag=flag)
+                      backend=backend, flag=flag,
+                      beside=_Beside(list(beside), on_beside, report.beside))
     except KeyboardInterrupt:
         report.interrupted = True
         _stopped(report, to_run, order, results, finish)
@@ -239,12 +248,69 @@ def execute(targets: Iterable[Job], *, store: Store | None = None, jobs: int = 1
     return report
 
 
+@dataclass
+class _Beside:
+    """:func:`execute`'s ``beside`` tasks, their callback and where their outcomes go."""
+
+    tasks: list
+    on_done: Callable[[int, str | None], None] | None
+    out: list
+
+    def done(self, i: int, error: str | None) -> None:
+        self.out[i] = error
+        if self.on_done is not None:
+            self.on_done(i, error)
+
+    def run_inline(self) -> None:
+        self.out[:] = [None] * len(self.tasks)
+        for i, fn in enumerate(self.tasks):
+            try:
+                fn()
+            except Exception as e:  # noqa: BLE001 - reported, the caller decides
+                self.done(i, f"{type(e).__name__}: {e}")
+            else:
+                self.done(i, None)
+
+    def submit(self, pool_backend: _PoolBackend) -> None:
+        self.out[:] = [None] * len(self.tasks)
+        for i, fn in enumerate(self.tasks):
+            fut = pool_backend.pool.submit(fn)
+            pool_backend.beside.append(fut)
+            fut.add_done_callback(lambda f, i=i: self.done(i, _error_of(f)))
+
+    def wait(self, pool_backend: _PoolBackend, flag) -> None:
+        try:
+            wait(pool_backend.beside)
+        except KeyboardInterrupt:
+            pool_backend.stop([], flag)
+            raise
+
+
+def _error_of(fut) -> str | None:
+    if fut.cancelled():
+        return "cancelled"
+    e = fut.exception()
+    return None if e is None else f"{type(e).__name__}: {e}"
+
+
 def _run_jobs(to_run, dec, results, finish, *, store, hook, by_key, jobs, threads_per_job,
-              keep_going, backend, flag) -> None:
+              keep_going, backend, flag, beside: _Beside) -> None:
     """Run the jobs ``to_run`` where :func:`execute` was asked to: on ``backend`` when there is
     one (and something to run), inline for ``jobs=1`` or a single job, else on this machine's
     process pool of ``min(jobs, len(to_run))`` workers (``threads_per_job`` defaulting to
-    ``cpu_count // jobs``)."""
+    ``cpu_count // jobs``); ``beside`` tasks in that pool, queued first (then it has ``jobs``
+    workers, whatever the graph's size), or one after another here."""
+    if beside.tasks and (backend is not None or jobs <= 1):
+        beside.run_inline()
+    elif beside.tasks:
+        if threads_per_job is None:
+            threads_per_job = max(1, (os.cpu_count() or 1) // jobs)
+        with _PoolBackend(store, hook, by_key, jobs, threads_per_job) as b:
+            beside.submit(b)
+            if to_run:
+                _run_graph(to_run, dec, results, finish, b, flag, keep_going)
+            beside.wait(b, flag)
+        return
     if backend is not None and to_run:
         with backend(store, hook, by_key, threads_per_job) as b:
             _run_graph(to_run, dec, results, finish, b, flag, keep_going)
@@ -450,6 +516,7 @@ class _PoolBackend(Backend):
         self.pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
                                         initializer=worker_init,
                                         initargs=(self.q, self.stop_workers, threads))
+        self.beside: list = []  # futures of execute's ``beside`` tasks (stopped with the jobs)
 
     def __enter__(self) -> _PoolBackend:
         self.drainer.start()
@@ -491,6 +558,7 @@ class _PoolBackend(Backend):
         """Cancel queued jobs; interrupt running ones (SIGINT, then SIGKILL after a grace
         period)."""
         self.stop_workers.set()
+        handles = list(handles) + [f for f in self.beside if not f.done()]
         for fut in handles:
             fut.cancel()  # those still waiting in the executor's queue
         pending = {f for f in handles if not f.cancelled()}

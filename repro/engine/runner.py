@@ -20,7 +20,8 @@ from pathlib import Path
 from typing import Any
 
 from repro.engine.evaluator_step import evaluators as _evaluators
-from repro.engine.evaluator_step import train_evaluators_side_by_side
+from repro.engine.evaluator_step import evaluators_to_train, train_evaluators_side_by_side, \
+    train_one_evaluator
 from repro.engine.footer import table_footer as _footer
 from repro.engine.gate_step import check_gate, stored_by
 from repro.engine.table_facts import test_sets_stored
@@ -157,8 +158,11 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
             device=getattr(sc, "device", "cpu"))) for p in plans]
         stored = _measurements_stored(plans, force)  # decide hits first: no scoring, no weights
         trained: frozenset = frozenset()
+        early: dict[str, dict] = {}
         if jobs > 1 and not stored:
-            trained = train_evaluators_side_by_side(plans, jobs, progress, log)
+            trained, early = _evaluators_beside_trainings(
+                plans, recs, jobs=jobs, force=force, progress=progress, backend=backend,
+                hook=hook, log=log)
         evaluators = [_evaluators(p, train=bool(p.jobs()), progress=progress, weights=not stored,
                                   rec=rec, trained=trained, log=log)
                       for p, rec in zip(plans, recs)]
@@ -166,7 +170,7 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
         for p, rec, setting in zip(plans, recs, gates):
             gate_records.append(check_gate(p, setting, rec, log, check=bool(p.jobs())))
         executed = _execute_plans(plans, recs, jobs=jobs, force=force, progress=progress,
-                                  backend=backend, hook=hook)
+                                  backend=backend, hook=hook, early=early)
         for p, rec, ev, gate, (reports, counts) in zip(plans, recs, evaluators, gate_records,
                                                         executed):
             out.append((p, _finish_run(p, rec, ev, gate, reports, counts), rec.run_id))
@@ -233,14 +237,19 @@ def _summary(plan, values: list[dict], trainings: list[dict], stored=None) -> di
 class _FanOut:
     """The executor's recorder for a graph that serves several tables: each job line goes to
     the run record of every table whose graph contains the job; an interrupt or a failure
-    that stops the graph ends every table's run."""
+    that stops the graph ends every table's run.  ``early``: jobs this run computed before the
+    graph (its trainings, beside the evaluators): the graph finds them stored, and their
+    "computed" lines stay."""
 
     status = "RUNNING"
 
-    def __init__(self, recorders: list, keys: list[set[str]]):
+    def __init__(self, recorders: list, keys: list[set[str]], early: dict | None = None):
         self._pairs = list(zip(recorders, keys))
+        self._early = early or {}
 
     def record_job(self, rec) -> None:
+        if rec.get("status") == "hit" and rec.get("key") in self._early:
+            return
         for recorder, keys in self._pairs:
             if rec.get("key") in keys:
                 recorder.record_job(rec)
@@ -258,19 +267,10 @@ def _row_targets(rp) -> list:
     return [j for js in rp.measures.values() for j in js]
 
 
-def _execute_plans(plans: list, recorders: list, *, jobs: int, force: Any,
-                   progress: bool, backend: Any = None, hook: Any = None
-                   ) -> list[tuple[dict[str, Any], dict[str, int]]]:
-    """Execute every row of every plan as one graph, so ``--jobs N`` overlaps rows and tables
-    (five trainings of a table run N at a time, not one after another).  A job that fails
-    cancels only what depends on it (``keep_going``): each row it reaches is marked FAILED
-    with the error and the other rows go on; a user error (:class:`ReproError`) and Ctrl-C
-    still stop the run.  Returns, per plan, (row id -> the graph's report, job counts by
-    status over that table's jobs).  ``hook``: a progress hook to use instead of the rich one
-    ``progress`` makes (:class:`repro.engine.progress.LineProgressHook`)."""
-    from repro.engine.executor import execute
+def _plan_targets(plans: list) -> tuple[dict[str, Any], list[set[str]]]:
+    """Every row target of the plans by key, and per plan the keys of the graph reaching its
+    targets."""
     from repro.engine.job import topo_order
-    from repro.report.view import FAILED
 
     targets: dict[str, Any] = {}
     keys: list[set[str]] = []
@@ -279,20 +279,91 @@ def _execute_plans(plans: list, recorders: list, *, jobs: int, force: Any,
         for j in mine:
             targets.setdefault(j.key(), j)
         keys.append({j.key() for j in topo_order(mine)} if mine else set())
-    if not targets:
-        return [({}, {}) for _ in plans]
-    fan = _FanOut(recorders, keys)
+    return targets, keys
+
+
+def _run_graph(targets: list, fan: _FanOut, *, jobs: int, force: Any, progress: bool,
+               backend: Any, hook: Any, beside=(), on_beside=None):
+    """:func:`repro.engine.executor.execute` over ``targets`` with the run's progress display
+    (``hook``, else rich bars when ``progress``)."""
+    from repro.engine.executor import execute
+
     if hook is None and progress:
         from repro.engine.progress import RichProgressHook
 
         hook = RichProgressHook()
-    if isinstance(hook, contextlib.AbstractContextManager):
-        with hook:
-            report = execute(list(targets.values()), jobs=jobs, force=force, hook=hook,
-                             recorder=fan, keep_going=True, backend=backend)
-    else:
-        report = execute(list(targets.values()), jobs=jobs, force=force, hook=hook,
-                         recorder=fan, keep_going=True, backend=backend)
+    with hook if isinstance(hook, contextlib.AbstractContextManager) else contextlib.nullcontext():
+        return execute(targets, jobs=jobs, force=force, hook=hook, recorder=fan,
+                       keep_going=True, backend=backend, beside=beside, on_beside=on_beside)
+
+
+def _evaluators_beside_trainings(plans: list, recorders: list, *, jobs: int, force: Any,
+                                 progress: bool, backend: Any, hook: Any, log
+                                 ) -> tuple[frozenset, dict[str, dict]]:
+    """With ``--jobs N > 1``: train the evaluators the run lacks in the same pool of N worker
+    processes as the graph's jobs that need none (the trainings; samples of protocols that do
+    not read the evaluator), queued first, so no worker idles while either has work: an
+    evaluator alone used to hold one core for its whole training while the trainings waited
+    (issue 32's converged runs).  The real-data gate and the scoring still wait for the
+    evaluators; a failing gate stops the run with those jobs stored.  Returns (store keys of the evaluators trained, key -> record of each job computed
+    here).  With nothing to overlap (or with ``--force`` or another back end) the evaluators
+    train side by side as before."""
+    from functools import partial
+
+    from repro.engine.job import topo_order
+
+    todo = evaluators_to_train(plans)
+    if not todo:
+        return frozenset(), {}
+    targets, keys = _plan_targets(plans)
+    needs: dict[str, bool] = {}  # the job or one it reads is keyed by an evaluator
+    for j in topo_order(list(targets.values())):
+        needs[j.key()] = "evaluator" in j.fingerprints or any(needs[i.key()] for i in j.inputs)
+    early_jobs = [j for j in topo_order(list(targets.values())) if not needs[j.key()]]
+    if not early_jobs or force or backend is not None:
+        return train_evaluators_side_by_side(plans, jobs, progress, log), {}
+    keys_todo = list(todo)
+    n_train = sum(j.kind == "train" for j in early_jobs)
+    msg = (f"{len(todo)} evaluator(s), {n_train} training(s) and {len(early_jobs) - n_train} "
+           f"other job(s) that need no evaluator, on {jobs} worker(s)")
+    if log is not None:
+        log(msg)
+    elif progress:
+        print(f"repro: {msg}…", file=sys.stderr)
+
+    def ended(i: int, error: str | None) -> None:
+        if error is None and log is not None:
+            log(f"evaluator trained [{keys_todo[i][:12]}]")
+
+    report = _run_graph(early_jobs, _FanOut(recorders, keys), jobs=jobs, force=None,
+                        progress=progress, backend=None, hook=hook,
+                        beside=[partial(train_one_evaluator, todo[k]) for k in keys_todo],
+                        on_beside=ended)
+    trained = frozenset(k for k, err in zip(keys_todo, report.beside) if err is None)
+    return trained, {r.key: r.as_record() for r in report.results if r.status == "computed"}
+
+
+def _execute_plans(plans: list, recorders: list, *, jobs: int, force: Any,
+                   progress: bool, backend: Any = None, hook: Any = None,
+                   early: dict[str, dict] | None = None
+                   ) -> list[tuple[dict[str, Any], dict[str, int]]]:
+    """Execute every row of every plan as one graph, so ``--jobs N`` overlaps rows and tables
+    (five trainings of a table run N at a time, not one after another).  A job that fails
+    cancels only what depends on it (``keep_going``): each row it reaches is marked FAILED
+    with the error and the other rows go on; a user error (:class:`ReproError`) and Ctrl-C
+    still stop the run.  Returns, per plan, (row id -> the graph's report, job counts by
+    status over that table's jobs).  ``hook``: a progress hook to use instead of the rich one
+    ``progress`` makes (:class:`repro.engine.progress.LineProgressHook`).  ``early``: the
+    trainings computed beside the evaluators (:func:`_evaluators_beside_trainings`), counted
+    as computed, not as the hits the graph finds them."""
+    from repro.report.view import FAILED
+
+    early = early or {}
+    targets, keys = _plan_targets(plans)
+    if not targets:
+        return [({}, {}) for _ in plans]
+    report = _run_graph(list(targets.values()), _FanOut(recorders, keys, early), jobs=jobs,
+                        force=force, progress=progress, backend=backend, hook=hook)
     out = []
     for p, mine in zip(plans, keys):
         reports: dict[str, Any] = {}
@@ -311,7 +382,8 @@ def _execute_plans(plans: list, recorders: list, *, jobs: int, force: Any,
         counts: dict[str, int] = {}
         for r in report.results:
             if r.key in mine:
-                counts[r.status] = counts.get(r.status, 0) + 1
+                status = "computed" if r.status == "hit" and r.key in early else r.status
+                counts[status] = counts.get(status, 0) + 1
         out.append((reports, counts))
     return out
 
