@@ -17,7 +17,7 @@ import pytest
 
 from repro.engine.executor import execute
 from repro.engine.job import Job, topo_order
-from repro.engine.job_run import COMPUTED, HIT, SKIPPED, UNCACHED
+from repro.engine.job_run import COMPUTED, FAILED, HIT, SKIPPED, UNCACHED
 from repro.engine.plan import plan
 from repro.engine.source_hash import clear_source_cache, source_hash, source_manifest
 from repro.paths import runs_root
@@ -73,6 +73,12 @@ def train(ctx):
         if delay:
             time.sleep(delay)
     (ctx.out / "model.json").write_text(json.dumps({"w": w, "steps": steps}))
+
+
+def fail_user(ctx):
+    from repro.errors import ConfigError
+
+    raise ConfigError("a user error in a job")
 
 
 def evaluate(ctx):
@@ -620,3 +626,30 @@ def test_tasks_beside_the_graph_run_and_report_their_errors(jobs_module, jobs):
     # nothing to run in the graph: the tasks still run (in a pool of ``jobs`` workers)
     again = execute(targets, jobs=jobs, beside=[functools.partial(int, "7")])
     assert again.all_hits and again.beside == [None]
+
+
+def test_a_user_error_stops_the_tasks_beside_without_waiting_for_them(jobs_module):
+    """A graph that stops (here a user error) stops ``beside`` tasks too, at once: before,
+    the pool's exit waited for a running evaluator (up to its whole training)."""
+    import functools
+
+    from repro.errors import ConfigError
+
+    t0 = time.perf_counter()
+    with pytest.raises(ConfigError, match="a user error in a job"):
+        execute([Job("fail", f"{MOD}:fail_user")], jobs=2, keep_going=True,
+                beside=[functools.partial(time.sleep, 120)])
+    assert time.perf_counter() - t0 < 60
+
+
+def test_jobs_that_failed_earlier_are_recorded_failed_not_run_again(jobs_module):
+    from repro.engine.executor import JobResult
+
+    targets = jobs_module.graph(seeds=(0, 1), steps=2)
+    train0 = next(j for j in topo_order(targets) if j.label == "train/s0")
+    earlier = JobResult(train0, train0.key(), FAILED, 1.0, error="FloatingPointError: nan")
+    report = execute(targets, keep_going=True, failed={train0.key(): earlier})
+    assert report.result(train0).status == FAILED and report.result(train0).error == earlier.error
+    assert report.failure_of([targets[0]]) is not None  # its dependents: cancelled
+    assert "train/s0" not in {c[1] for c in _calls(jobs_module)}  # not run a second time
+    assert any(c[1] == "train/s1" for c in _calls(jobs_module))

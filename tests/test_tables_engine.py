@@ -270,6 +270,10 @@ def test_with_two_jobs_the_trainings_run_beside_the_evaluator(tiny_tables, _repr
         "worker(s)" in err
     assert "evaluator trained [" in err
     assert err.index("evaluator trained [") < err.index("gate")  # before the gate and graph
+    import re
+
+    counters = [(int(a), int(b)) for a, b in re.findall(r"\((\d+)/(\d+)\)", err)]
+    assert counters and all(a <= b for a, b in counters)  # each graph counts its own jobs
     rec = json.loads((_repro_home / "runs" / run2 / "run.json").read_text())
     trains = [j for j in rec["jobs"] if j["kind"] == "train"]
     assert [j["status"] for j in trains] == ["computed"]  # trained once, counted as computed

@@ -59,7 +59,7 @@ from repro.engine import plan as planmod
 from repro.errors import ReproError
 from repro.engine.job import Job, topo_order
 from repro.engine.job_run import (CANCELLED, COMPUTED, FAILED, HIT, INTERRUPTED, SKIPPED,
-                                  run_job, worker_init, worker_task)
+                                  beside_task, run_job, worker_init, worker_task)
 from repro.store.object_files import StoredObject
 from repro.store.objects import Store
 
@@ -174,7 +174,8 @@ def execute(targets: Iterable[Job], *, store: Store | None = None, jobs: int = 1
             force: bool | str | Iterable[str] | None = None, hook: ProgressHook | None = None,
             recorder=None, threads_per_job: int | None = None,
             keep_going: bool = False, backend=None, beside: Sequence[Callable[[], Any]] = (),
-            on_beside: Callable[[int, str | None], None] | None = None) -> ExecutionReport:
+            on_beside: Callable[[int, str | None], None] | None = None,
+            failed: dict[str, JobResult] | None = None) -> ExecutionReport:
     """Run the graph reaching ``targets`` and return every job's (key, status, seconds, object).
 
     ``force``: ``True`` recomputes everything, a kind/label (or several) recomputes those.
@@ -191,6 +192,9 @@ def execute(targets: Iterable[Job], *, store: Store | None = None, jobs: int = 1
     either has work (``jobs=1`` or a ``backend``: one after another here, before the graph);
     :attr:`ExecutionReport.beside` holds None or the error of each, ``on_beside(i, error)`` is
     called as each ends.  An interrupt stops them with the graph.
+    ``failed``: jobs that failed earlier in the same command (key -> their FAILED result;
+    :func:`repro.engine.runner.run_tables`' trainings beside the evaluators): recorded as
+    failed again and their dependents cancelled, not run a second time (``keep_going``).
     """
     store = store or Store()
     hook = hook or ProgressHook()
@@ -222,6 +226,8 @@ def execute(targets: Iterable[Job], *, store: Store | None = None, jobs: int = 1
         elif d.action == planmod.SKIP:
             finish(JobResult(job, job.key(), SKIPPED))
     to_run = [j for j in order if dec[j.key()].action == planmod.RUN]
+    if failed and keep_going:
+        to_run = _drop_known_failures(to_run, failed, finish)
     flag: dict[str, bool] = {}
     try:
         with _sigterm_as_interrupt(flag):
@@ -246,6 +252,23 @@ def execute(targets: Iterable[Job], *, store: Store | None = None, jobs: int = 1
     report.results = [results[j.key()] for j in order]
     hook.graph_finished(report)
     return report
+
+
+def _drop_known_failures(to_run: list[Job], failed: dict[str, JobResult], finish) -> list[Job]:
+    """``to_run`` without the jobs of ``failed`` (recorded with their earlier result) and
+    their dependents (recorded CANCELLED), in order."""
+    out, gone = [], set()
+    for j in to_run:
+        k = j.key()
+        if k in failed:
+            finish(failed[k])
+            gone.add(k)
+        elif any(i.key() in gone for i in j.inputs):
+            finish(JobResult(j, k, CANCELLED, error="an input failed"))
+            gone.add(k)
+        else:
+            out.append(j)
+    return out
 
 
 @dataclass
@@ -274,16 +297,12 @@ class _Beside:
     def submit(self, pool_backend: _PoolBackend) -> None:
         self.out[:] = [None] * len(self.tasks)
         for i, fn in enumerate(self.tasks):
-            fut = pool_backend.pool.submit(fn)
+            fut = pool_backend.pool.submit(beside_task, fn)
             pool_backend.beside.append(fut)
             fut.add_done_callback(lambda f, i=i: self.done(i, _error_of(f)))
 
-    def wait(self, pool_backend: _PoolBackend, flag) -> None:
-        try:
-            wait(pool_backend.beside)
-        except KeyboardInterrupt:
-            pool_backend.stop([], flag)
-            raise
+    def wait(self, pool_backend: _PoolBackend) -> None:
+        wait(pool_backend.beside)
 
 
 def _error_of(fut) -> str | None:
@@ -307,9 +326,13 @@ def _run_jobs(to_run, dec, results, finish, *, store, hook, by_key, jobs, thread
             threads_per_job = max(1, (os.cpu_count() or 1) // jobs)
         with _PoolBackend(store, hook, by_key, jobs, threads_per_job) as b:
             beside.submit(b)
-            if to_run:
-                _run_graph(to_run, dec, results, finish, b, flag, keep_going)
-            beside.wait(b, flag)
+            try:
+                if to_run:
+                    _run_graph(to_run, dec, results, finish, b, flag, keep_going)
+                beside.wait(b)
+            except BaseException:  # a user error, an interrupt: stop the tasks, do not wait
+                b.stop([], flag)
+                raise
         return
     if backend is not None and to_run:
         with backend(store, hook, by_key, threads_per_job) as b:

@@ -175,3 +175,15 @@ def worker_task(job: Job, key: str, inputs, root: str, force: bool, threads: int
         return run_in_worker(job, key, inputs, root, force, threads, _put)
     finally:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def beside_task(fn):
+    """A pool worker's task that is not a job (``execute(beside=...)``: a run's evaluator):
+    ``fn()``, interruptible by Ctrl-C while it runs, as :func:`worker_task`."""
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        if _STOP is not None and _STOP.is_set():
+            raise KeyboardInterrupt
+        return fn()
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)

@@ -96,6 +96,9 @@ class LineProgressHook(ProgressHook):
                   flush=True)
 
     def graph_started(self, entries) -> None:
+        with self._lock:  # a run may execute two graphs (trainings beside the evaluators)
+            self._done = 0
+            self._started.clear()
         self._to_run = sum(1 for _, _, a in entries if a == "run")
         n_hit = sum(1 for _, _, a in entries if a == "hit")
         self.note(f"{len(entries)} jobs: {n_hit} cached, {self._to_run} to run")

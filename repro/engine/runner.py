@@ -159,8 +159,9 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
         stored = _measurements_stored(plans, force)  # decide hits first: no scoring, no weights
         trained: frozenset = frozenset()
         early: dict[str, dict] = {}
+        failed_early: dict = {}
         if jobs > 1 and not stored:
-            trained, early = _evaluators_beside_trainings(
+            trained, early, failed_early = _evaluators_beside_trainings(
                 plans, recs, jobs=jobs, force=force, progress=progress, backend=backend,
                 hook=hook, log=log)
         evaluators = [_evaluators(p, train=bool(p.jobs()), progress=progress, weights=not stored,
@@ -170,7 +171,8 @@ def run_tables(names: list[str], *, scale: str = "quick", dataset: str | None = 
         for p, rec, setting in zip(plans, recs, gates):
             gate_records.append(check_gate(p, setting, rec, log, check=bool(p.jobs())))
         executed = _execute_plans(plans, recs, jobs=jobs, force=force, progress=progress,
-                                  backend=backend, hook=hook, early=early)
+                                  backend=backend, hook=hook, early=early,
+                                  failed=failed_early)
         for p, rec, ev, gate, (reports, counts) in zip(plans, recs, evaluators, gate_records,
                                                         executed):
             out.append((p, _finish_run(p, rec, ev, gate, reports, counts), rec.run_id))
@@ -283,7 +285,7 @@ def _plan_targets(plans: list) -> tuple[dict[str, Any], list[set[str]]]:
 
 
 def _run_graph(targets: list, fan: _FanOut, *, jobs: int, force: Any, progress: bool,
-               backend: Any, hook: Any, beside=(), on_beside=None):
+               backend: Any, hook: Any, beside=(), on_beside=None, failed=None):
     """:func:`repro.engine.executor.execute` over ``targets`` with the run's progress display
     (``hook``, else rich bars when ``progress``)."""
     from repro.engine.executor import execute
@@ -294,34 +296,43 @@ def _run_graph(targets: list, fan: _FanOut, *, jobs: int, force: Any, progress: 
         hook = RichProgressHook()
     with hook if isinstance(hook, contextlib.AbstractContextManager) else contextlib.nullcontext():
         return execute(targets, jobs=jobs, force=force, hook=hook, recorder=fan,
-                       keep_going=True, backend=backend, beside=beside, on_beside=on_beside)
+                       keep_going=True, backend=backend, beside=beside, on_beside=on_beside,
+                       failed=failed)
 
 
 def _evaluators_beside_trainings(plans: list, recorders: list, *, jobs: int, force: Any,
                                  progress: bool, backend: Any, hook: Any, log
-                                 ) -> tuple[frozenset, dict[str, dict]]:
+                                 ) -> tuple[frozenset, dict[str, dict], dict]:
     """With ``--jobs N > 1``: train the evaluators the run lacks in the same pool of N worker
     processes as the graph's jobs that need none (the trainings; samples of protocols that do
     not read the evaluator), queued first, so no worker idles while either has work: an
     evaluator alone used to hold one core for its whole training while the trainings waited
     (issue 32's converged runs).  The real-data gate and the scoring still wait for the
-    evaluators; a failing gate stops the run with those jobs stored.  Returns (store keys of the evaluators trained, key -> record of each job computed
-    here).  With nothing to overlap (or with ``--force`` or another back end) the evaluators
-    train side by side as before."""
+    evaluators; a failing gate stops the run with those jobs stored.  Returns (store keys of
+    the evaluators trained, key -> record of each job computed here, key -> result of each
+    that failed here).  With nothing to overlap (or with ``--force`` or another back end)
+    the evaluators train side by side before the graph, as before this change."""
     from functools import partial
 
     from repro.engine.job import topo_order
 
     todo = evaluators_to_train(plans)
     if not todo:
-        return frozenset(), {}
+        return frozenset(), {}, {}
     targets, keys = _plan_targets(plans)
+    if force or backend is not None:
+        return train_evaluators_side_by_side(plans, jobs, progress, log), {}, {}
+    from repro.engine import plan as planmod
+    from repro.store.objects import Store
+
+    order = topo_order(list(targets.values()))
+    dec = planmod.decide(order, Store(), None, verify=False, targets=list(targets))
     needs: dict[str, bool] = {}  # the job or one it reads is keyed by an evaluator
-    for j in topo_order(list(targets.values())):
+    for j in order:
         needs[j.key()] = "evaluator" in j.fingerprints or any(needs[i.key()] for i in j.inputs)
-    early_jobs = [j for j in topo_order(list(targets.values())) if not needs[j.key()]]
-    if not early_jobs or force or backend is not None:
-        return train_evaluators_side_by_side(plans, jobs, progress, log), {}
+    early_jobs = [j for j in order if not needs[j.key()] and dec[j.key()].action == planmod.RUN]
+    if not early_jobs:
+        return train_evaluators_side_by_side(plans, jobs, progress, log), {}, {}
     keys_todo = list(todo)
     n_train = sum(j.kind == "train" for j in early_jobs)
     msg = (f"{len(todo)} evaluator(s), {n_train} training(s) and {len(early_jobs) - n_train} "
@@ -332,20 +343,26 @@ def _evaluators_beside_trainings(plans: list, recorders: list, *, jobs: int, for
         print(f"repro: {msg}…", file=sys.stderr)
 
     def ended(i: int, error: str | None) -> None:
-        if error is None and log is not None:
-            log(f"evaluator trained [{keys_todo[i][:12]}]")
+        if log is not None:
+            log(f"evaluator trained [{keys_todo[i][:12]}]" if error is None else
+                f"evaluator [{keys_todo[i][:12]}] failed beside the trainings ({error}); it is "
+                "trained again once they end, to report the error")
 
     report = _run_graph(early_jobs, _FanOut(recorders, keys), jobs=jobs, force=None,
                         progress=progress, backend=None, hook=hook,
                         beside=[partial(train_one_evaluator, todo[k]) for k in keys_todo],
                         on_beside=ended)
     trained = frozenset(k for k, err in zip(keys_todo, report.beside) if err is None)
-    return trained, {r.key: r.as_record() for r in report.results if r.status == "computed"}
+    # a job that failed here is not run again by the graph (a worker killed under it is)
+    failed = {r.key: r for r in report.results
+              if r.status == "failed" and "BrokenProcessPool" not in (r.error or "")}
+    return (trained, {r.key: r.as_record() for r in report.results if r.status == "computed"},
+            failed)
 
 
 def _execute_plans(plans: list, recorders: list, *, jobs: int, force: Any,
                    progress: bool, backend: Any = None, hook: Any = None,
-                   early: dict[str, dict] | None = None
+                   early: dict[str, dict] | None = None, failed: dict | None = None
                    ) -> list[tuple[dict[str, Any], dict[str, int]]]:
     """Execute every row of every plan as one graph, so ``--jobs N`` overlaps rows and tables
     (five trainings of a table run N at a time, not one after another).  A job that fails
@@ -355,7 +372,8 @@ def _execute_plans(plans: list, recorders: list, *, jobs: int, force: Any,
     status over that table's jobs).  ``hook``: a progress hook to use instead of the rich one
     ``progress`` makes (:class:`repro.engine.progress.LineProgressHook`).  ``early``: the
     trainings computed beside the evaluators (:func:`_evaluators_beside_trainings`), counted
-    as computed, not as the hits the graph finds them."""
+    as computed, not as the hits the graph finds them; ``failed``: those that failed there,
+    recorded as failed without a second try."""
     from repro.report.view import FAILED
 
     early = early or {}
@@ -363,7 +381,8 @@ def _execute_plans(plans: list, recorders: list, *, jobs: int, force: Any,
     if not targets:
         return [({}, {}) for _ in plans]
     report = _run_graph(list(targets.values()), _FanOut(recorders, keys, early), jobs=jobs,
-                        force=force, progress=progress, backend=backend, hook=hook)
+                        force=force, progress=progress, backend=backend, hook=hook,
+                        failed=failed)
     out = []
     for p, mine in zip(plans, keys):
         reports: dict[str, Any] = {}

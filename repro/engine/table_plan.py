@@ -317,7 +317,8 @@ def _train_job(pl: _Planner, b: Band, seed: int, method: str, method_cfg: dict,
     not by the protocol, so a model serves every table whose protocols make items the same
     way."""
     per_method = getattr(pl.scale, "schedule_for", None)  # until a plateau (issue 32)
-    schedule = per_method(method) if per_method is not None else None
+    schedule = per_method(method) if per_method is not None else getattr(pl.scale, "schedule",
+                                                                           None)
     return pl.job("train", f"{STEPS}:train_method",
                   {"dataset": pl.dataset, "items": b.item_source, "method": method,
                    "method_config": method_cfg, "validation": pl.validation,

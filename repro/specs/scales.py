@@ -81,7 +81,7 @@ class PlateauSettings(BaseModel):
             if m not in names.METHODS:
                 raise ValueError(names.unknown_name_message("method", m))
             if not minutes > 0:
-                raise ValueError(f"method_max_minutes.{m} must be > 0, got {minutes!r}")
+                raise ValueError(f"{m} must be > 0, got {minutes!r}")
         return v
 
 
