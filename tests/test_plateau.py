@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from repro.train.loop import Stopping, train, use_stopping
-from repro.train.plateau import PlateauRule, convergence_record, plateau_epoch, window
+from repro.train.plateau import PlateauRule, convergence_record, fires_at, plateau_epoch, window
 
 
 def _hist(values, metric="val_loss"):
@@ -72,6 +72,48 @@ def test_noisy_still_falling_does_not_fire(seed):
     assert plateau_epoch(_hist(values), PlateauRule()) is None
     if seed == 0:
         assert _best_vs_best(values) is not None
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_spike_at_the_end_of_a_falling_curve_does_not_fire(seed):
+    # 1 % better per epoch, then three bad epochs: window means read the spike as "no
+    # improvement" and fire; medians, which the default rule also requires, do not move
+    rng = np.random.default_rng(seed)
+    values = 0.99 ** np.arange(60) * (1.0 + 0.005 * rng.standard_normal(60))
+    values[-3:] *= 2.0  # as MACVAE's val_kl did (243 -> 528)
+    h = _hist(values)
+    assert fires_at(h, PlateauRule(statistic="mean"), 59)
+    assert not fires_at(h, PlateauRule(), 59)
+    assert not fires_at(h, PlateauRule(statistic="median"), 59)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_noisy_still_falling_needs_the_means_too(seed):
+    # medians alone are noisier than means: on a curve still falling under Gaussian noise they
+    # can fire early; the default rule fires only when both agree, so it never fires earlier
+    # than the mean reading
+    rng = np.random.default_rng(seed)
+    values = 0.994 ** np.arange(100) * (1.0 + 0.015 * rng.standard_normal(100))
+    h = _hist(values)
+    both = plateau_epoch(h, PlateauRule())
+    assert both is None or both >= (plateau_epoch(h, PlateauRule(statistic="mean")) or 0)
+
+
+def test_the_recorded_macvae_curve_that_fired_on_a_kl_spike_no_longer_fires():
+    """multiact/table2's first converged record: MACVAE's rule (val_loss, val_kl two-sided)
+    fired at epoch 63 under window means, in the middle of a jump of both quantities
+    (val_kl 243 -> 528 over epochs 61-63); medians see the KL still falling."""
+    import json
+
+    from repro.paths import repo_root
+
+    rec = repo_root() / "docs" / "results" / "converged" / "20261206T211808.145Z-e0a5bd"
+    tr = next(t["training"] for t in json.loads((rec / "trainings.json").read_text())["trainings"]
+              if t["method"] == "macvae")
+    rule = dict(tr["convergence"]["rule"], also=tuple(tr["convergence"]["rule"]["also"]))
+    assert tr["convergence"]["converged_epoch"] == 63  # as recorded, under means
+    assert plateau_epoch(tr["history"], PlateauRule(**rule, statistic="mean")) == 63
+    assert plateau_epoch(tr["history"], PlateauRule(**rule)) is None
 
 
 def test_falls_then_plateaus_fires_after_the_knee():

@@ -68,6 +68,10 @@ class PlateauSettings(BaseModel):
                                 "epochs run so far")
     min_window: int = Field(5, ge=1, description="the window's least length in epochs")
     smooth: int = Field(3, ge=1, description="epochs of the trailing mean")
+    statistic: Literal["both", "mean", "median"] = Field("both", description=(
+        "how each window of smoothed values is summarised: 'both' fires only when the means "
+        "and the medians of the two windows agree (a median is not moved by a spike of less "
+        "than half a window; a mean averages noise best): repro/train/plateau.py"))
     max_minutes: float | None = Field(None, gt=0.0, description="time cap of one training "
                                       "(cumulative over resumes); None: the epoch cap only")
     method_max_minutes: dict[str, float] = Field(default_factory=dict, description=(

@@ -18,13 +18,22 @@ At epoch *e* (0-based), with each quantity smoothed by a trailing mean over ``sm
     converged at e  ⇔  the last two windows of ``w`` epochs lie wholly at or after
                         ``start_epoch`` + ``smooth`` − 1, and, with ``b`` and ``l`` the means
                         of s over the window before and over the last window,
-                        b − l < tolerance · max(|b|, atol)
+                        b − l < tolerance · max(|b|, atol),
+                        and the same holds with ``b`` and ``l`` the windows' medians
 
 i.e. the smoothed quantity improved by less than ``tolerance`` (1 %) over the last ``w``
-epochs (20 % of the run, at least 5), window mean against window mean (``atol``, 1e-6, only
-keeps a quantity at zero from never firing).  Means, not best values: a curve still falling by
-a few per cent per window under epoch-to-epoch noise must not fire because one lucky early
-epoch stands as the best; a window mean averages ``w`` epochs of noise away.  (The held-out
+epochs (20 % of the run, at least 5), window against window (``atol``, 1e-6, only keeps a
+quantity at zero from never firing).  Window summaries, not best values: a curve still falling
+by a few per cent per window under epoch-to-epoch noise must not fire because one lucky early
+epoch stands as the best; a window mean averages ``w`` epochs of noise away.
+
+Medians too (``statistic = "both"``, the default; "mean" and "median" read one): a mean is
+moved by a spike, so a curve still falling whose last few epochs jump (an unstable step, a bad
+batch) reads as "no improvement" and fires in the middle of the jump: the first converged
+records (2026-12-06, window means only) stopped MACVAE at epoch 63 while its ``val_kl`` went
+243 → 528 and ODMO's paper reading in a bump; a median is not moved by a spike shorter than
+half a window, but alone it is noisier than the mean under Gaussian noise and fires early on
+a curve still falling.  Requiring both keeps each one's protection.  (The held-out
 quantity is measured with the same random draws every epoch — :func:`repro.train.loop` seeds
 validation once per training — so what noise remains is the model's own, not the draws'.)  A
 rising curve (over-fitting) and a flat one fire; a curve still falling by more than 1 % per
@@ -59,6 +68,8 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 #: what :func:`criterion_text` and the records call the rule
 RULE_NAME = "plateau"
+#: how a window of smoothed values is summarised (module docstring, "Medians")
+STATISTICS = ("both", "mean", "median")
 
 
 @dataclass(frozen=True)
@@ -75,8 +86,12 @@ class PlateauRule:
     min_window: int = 5
     smooth: int = 3
     start_epoch: int = 0
+    statistic: str = "both"
 
     def __post_init__(self):
+        if self.statistic not in STATISTICS:
+            raise ValueError(f"plateau statistic must be one of {', '.join(STATISTICS)}, got "
+                             f"{self.statistic!r}")
         if not (0.0 < self.tolerance < 1.0):
             raise ValueError(f"plateau tolerance must lie in (0, 1), got {self.tolerance!r}")
         if not (0.0 <= self.window_share < 1.0):
@@ -88,8 +103,9 @@ class PlateauRule:
 
     def with_settings(self, settings: dict[str, Any] | None) -> "PlateauRule":
         """This rule with the profile's settings (``tolerance``, ``window_share``,
-        ``min_window``, ``smooth``) applied; the method's ``metric`` and ``start_epoch`` stay."""
-        keys = ("tolerance", "window_share", "min_window", "smooth")
+        ``min_window``, ``smooth``, ``statistic``) applied; the method's ``metric`` and
+        ``start_epoch`` stay."""
+        keys = ("tolerance", "window_share", "min_window", "smooth", "statistic")
         return replace(self, **{k: v for k, v in (settings or {}).items() if k in keys})
 
     @property
@@ -131,9 +147,13 @@ def _fires_on(history: list[dict], metric: str, rule: PlateauRule, epoch: int,
     s = sliding_window_view(v, rule.smooth).mean(axis=1)  # NaN where any epoch is NaN
     if not np.isfinite(s).all():
         return False  # a window with a missing or non-finite value never fires
-    b, last = float(s[:w].mean()), float(s[w:].mean())
-    change = abs(b - last) if two_sided else b - last
-    return change < rule.tolerance * max(abs(b), rule.atol)
+    aggs = {"both": (np.mean, np.median), "mean": (np.mean,), "median": (np.median,)}
+    for agg in aggs[rule.statistic]:
+        b, last = float(agg(s[:w])), float(agg(s[w:]))
+        change = abs(b - last) if two_sided else b - last
+        if not change < rule.tolerance * max(abs(b), rule.atol):
+            return False
+    return True
 
 
 def fires_at(history: list[dict], rule: PlateauRule, epoch: int) -> bool:
@@ -162,7 +182,9 @@ def criterion_text(rule: PlateauRule) -> str:
     start = (f", after the first {rule.start_epoch} epochs" if rule.start_epoch else "")
     gate = (f", on epochs with {rule.gate} = 1" if rule.gate else "")
     also = "".join(f"; {m} changed < {rule.tolerance:.0%} either way" for m in rule.also)
-    return (f"{rule.metric} ({rule.smooth}-epoch mean{start}{gate}): mean of the last max("
+    stat = "mean and median" if rule.statistic == "both" else rule.statistic
+    return (f"{rule.metric} ({rule.smooth}-epoch mean{start}{gate}): {stat} of the "
+            f"last max("
             f"{rule.min_window}, {rule.window_share:.0%}) epochs improved < "
             f"{rule.tolerance:.0%} on the window before{also}")
 
