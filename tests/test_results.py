@@ -420,11 +420,12 @@ def test_current_quick_records_were_made_under_the_pin():
 # -- at convergence (issue 32): the page opens with the claims of the converged run -------------
 CONVERGED = _records("converged")
 #: the specs the converged run covers (the others are named on the page as not run)
-CONVERGED_TABLES = {"marionette/table1", "multiact/table2", "odmo/table3"}
+CONVERGED_TABLES = {"marionette/table1", "multiact/table2", "multiact/tableB", "odmo/table3"}
 
 
 def test_there_are_converged_records_one_table_per_paper():
     assert {_run(p)[0]["table"] for p in CONVERGED} == CONVERGED_TABLES
+    assert {t.split("/")[0] for t in CONVERGED_TABLES} == {"marionette", "multiact", "odmo"}
 
 
 @pytest.mark.parametrize("path", CONVERGED, ids=[p.name for p in CONVERGED])
@@ -493,10 +494,24 @@ def test_converged_tables_and_curves_are_on_the_page(tmp_path, monkeypatch):
                 assert curve in page, f"learning curve of {table} {t['row']} missing"
 
 
+def _holds_now(rec: dict) -> str:
+    """Whether today's rule (window means *and* medians) holds at the training's last epoch,
+    read on its recorded history with its recorded settings: 'yes' / 'no'."""
+    from repro.train.plateau import PlateauRule, fires_at
+
+    rule = dict(rec["convergence"]["rule"])
+    rule["also"] = tuple(rule["also"])
+    rule["statistic"] = "both"
+    return "yes" if fires_at(rec["history"], PlateauRule(**rule), len(rec["history"]) - 1) \
+        else "no"
+
+
 def _converged_trainings_table() -> str:
-    """The page's table of every training of the converged records, as the records say."""
-    rows = ["| spec | row | method | epochs run (cap) | training time | stopped by | converged |",
-            "|---|---|---|---|---|---|---|"]
+    """The page's table of every training of the converged records, as the records say, with
+    whether today's rule would hold where each stopped."""
+    rows = ["| spec | row | method | epochs run (cap) | training time | stopped by | converged "
+            "(as recorded: means) | rule holds there (means and medians) |",
+            "|---|---|---|---|---|---|---|---|"]
     for p in CONVERGED:
         table = _run(p)[0]["table"]
         for t in json.loads((p / "trainings.json").read_text())["trainings"]:
@@ -506,7 +521,7 @@ def _converged_trainings_table() -> str:
             conv = rec["convergence"]
             rows.append(f"| `{table}` | {t['row']} | {t['method']} | {len(rec['history'])} "
                         f"({rec['epochs']}) | {rec['seconds']:.0f} s | {conv['stopped_by']} | "
-                        f"{'yes' if conv['converged'] else 'no'} |")
+                        f"{'yes' if conv['converged'] else 'no'} | {_holds_now(rec)} |")
     return "\n".join(rows)
 
 
@@ -536,3 +551,19 @@ def test_converged_history_record_with_actors_old_cap():
              if t["method"] == "actor"][0]
     assert actor["epochs"] == 100 and len(actor["history"]) == 100
     assert actor["convergence"]["stopped_by"] == "epochs" and actor["seconds"] < 120
+
+
+def test_converged_backbones_transformer_is_table2s_macvae_and_stopped_in_a_spike():
+    """multiact/tableB at converged (2026-12-07, under the rule's means-only reading): its
+    transformer row is multiact/table2's MACVAE training, bitwise (same items, seed, config),
+    and stopped in the same KL spike, where today's rule (means and medians) does not hold."""
+    (path,) = [p for p in CONVERGED if _run(p)[0]["table"] == "multiact/tableB"]
+    (table2,) = [p for p in CONVERGED if _run(p)[0]["table"] == "multiact/table2"]
+    trainings = {t["row"]: t["training"]
+                 for t in json.loads((path / "trainings.json").read_text())["trainings"]}
+    assert set(trainings) == {"transformer", "lstm", "gru", "mlp"}
+    tr = trainings["transformer"]
+    macvae = [t["training"] for t in json.loads((table2 / "trainings.json").read_text())
+              ["trainings"] if t["method"] == "macvae"][0]
+    assert tr["history"] == macvae["history"]
+    assert tr["convergence"]["converged_epoch"] == 63 and _holds_now(tr) == "no"
