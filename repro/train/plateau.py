@@ -68,8 +68,10 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 #: what :func:`criterion_text` and the records call the rule
 RULE_NAME = "plateau"
-#: how a window of smoothed values is summarised (module docstring, "Medians")
-STATISTICS = ("both", "mean", "median")
+#: how a window of smoothed values is summarised (module docstring, "Medians"): each reading's
+#: summaries, every one of which must find the improvement under the tolerance
+_SUMMARIES = {"both": (np.mean, np.median), "mean": (np.mean,), "median": (np.median,)}
+STATISTICS = tuple(_SUMMARIES)
 
 
 @dataclass(frozen=True)
@@ -147,8 +149,7 @@ def _fires_on(history: list[dict], metric: str, rule: PlateauRule, epoch: int,
     s = sliding_window_view(v, rule.smooth).mean(axis=1)  # NaN where any epoch is NaN
     if not np.isfinite(s).all():
         return False  # a window with a missing or non-finite value never fires
-    aggs = {"both": (np.mean, np.median), "mean": (np.mean,), "median": (np.median,)}
-    for agg in aggs[rule.statistic]:
+    for agg in _SUMMARIES[rule.statistic]:
         b, last = float(agg(s[:w])), float(agg(s[w:]))
         change = abs(b - last) if two_sided else b - last
         if not change < rule.tolerance * max(abs(b), rule.atol):
@@ -183,8 +184,7 @@ def criterion_text(rule: PlateauRule) -> str:
     gate = (f", on epochs with {rule.gate} = 1" if rule.gate else "")
     also = "".join(f"; {m} changed < {rule.tolerance:.0%} either way" for m in rule.also)
     stat = "mean and median" if rule.statistic == "both" else rule.statistic
-    return (f"{rule.metric} ({rule.smooth}-epoch mean{start}{gate}): {stat} of the "
-            f"last max("
+    return (f"{rule.metric} ({rule.smooth}-epoch mean{start}{gate}): {stat} of the last max("
             f"{rule.min_window}, {rule.window_share:.0%}) epochs improved < "
             f"{rule.tolerance:.0%} on the window before{also}")
 
