@@ -9,7 +9,8 @@ run, on the same weights and conditions, with
   :data:`BEFORE` by ``benchmarks/_before.py`` and swapped in by :func:`old_cached_sampler`;
   caches grown by ``torch.cat`` at every step, separate q/k/v projections, per-step masks and
   positional encodings),
-- the library's cached sampler (``after``: preallocated caches written in place, fused and
+- the library's cached sampler (``after``: preallocated key/value caches written in place,
+  the cross-attention memory's keys/values projected once per pass (issue 31), fused and
   pre-transposed step weights, everything reusable made once per call),
 - the uncached sampler, recomputing the full causal pass at every step.
 

@@ -106,7 +106,8 @@ def unpack_before(commit: str) -> Path | None:
 
 
 # Run in a child process whose ``repro`` is the code under test (PYTHONPATH), so that the
-# prepare's spawned workers import the same code; prints one JSON line.
+# prepare's workers (the "before" code's spawned processes; threads since issue 31) run the
+# same code; prints one JSON line.
 _PREPARE_CHILD = """
 import json, os, resource, sys, time
 import repro

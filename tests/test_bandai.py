@@ -170,7 +170,6 @@ def test_failed_prepare_never_removes_a_good_cache(tmp_path, monkeypatch):
     assert load_bandai2("toy").fingerprint == good.fingerprint
 
 
-@pytest.mark.slow  # starting two spawned workers (each imports torch) takes 5-15 s here
 def test_worker_pool_reports_a_bad_file(tmp_path, monkeypatch):
     files = write_toy(tmp_path / "src", per_cell=1)
     files[1].write_text(files[1].read_text().replace("Zrotation", "Qrotation", 1))

@@ -159,18 +159,18 @@ def test_cached_sampler_matches_the_pre_issue17_sampler(clips, items):
 
 
 def test_decoder_cache_is_written_in_place():
-    """The per-layer input buffers are allocated once for ``max_len`` steps: steps within it
-    write in place (same storage), a step past it grows the buffers and keeps the filled
+    """The per-layer key/value buffers are allocated once for ``max_len`` steps: steps within
+    it write in place (same storage), a step past it grows the buffers and keeps the filled
     prefix."""
     torch.manual_seed(0)
     dec = TransformerDecoder(2, 16, 4, 32, 0.0, "relu").eval()
     x, mem = torch.randn(2, 6, 16), torch.randn(2, 5, 16)
     full = dec(x, mem, causal=True)
     cache = dec.init_cache(mem, max_len=4)
-    ptrs = [b.data_ptr() for b in cache.inputs]
+    ptrs = [b.data_ptr() for kv in cache.self_kv for b in kv]
     outs = [dec.step(x[:, t:t + 1], cache) for t in range(4)]
     assert cache.length == 4 and cache.capacity == 4
-    assert [b.data_ptr() for b in cache.inputs] == ptrs
+    assert [b.data_ptr() for kv in cache.self_kv for b in kv] == ptrs
     outs += [dec.step(x[:, t:t + 1], cache) for t in range(4, 6)]
     assert cache.length == 6 and cache.capacity >= 6
     assert torch.allclose(torch.cat(outs, 1), full, atol=1e-5)

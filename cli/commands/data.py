@@ -19,7 +19,7 @@ def register(subparsers) -> None:
                     "bandai2-seq-mini)")
     pp.add_argument("--source", help="the upstream archive or an extracted folder "
                     "(default: ../shared/data/bandai-namco-2/ or $REPRO_DATA)")
-    pp.add_argument("--workers", type=int, default=2, help="parser processes (0: in-process)")
+    pp.add_argument("--workers", type=int, default=2, help="parser threads (0: in the main thread)")
     pp.add_argument("--force", action="store_true", help="rebuild even if the cache is valid")
     pp.add_argument("--json", action="store_true", help="print the result as JSON")
     pp.set_defaults(func=_prepare)
@@ -39,7 +39,7 @@ def register(subparsers) -> None:
     pb = sub.add_parser("bundle", help="rebuild the bundled bandai2-mini subset")
     pb.add_argument("--source", help="bandai2 archive or folder (default: as for prepare)")
     pb.add_argument("--out", help="output folder (default: the package's repro/data/bundled/)")
-    pb.add_argument("--workers", type=int, default=2, help="parser processes for prepare")
+    pb.add_argument("--workers", type=int, default=2, help="parser threads for prepare")
     pb.set_defaults(func=_bundle)
 
 

@@ -2,7 +2,7 @@
 
 ``prepare_bandai2(source)`` reads the upstream archive straight through :mod:`tarfile` (one
 decompression pass, nothing unpacked to disk) or an extracted folder, parses every clip with
-:mod:`repro.data.bvh` (a pool of worker processes), converts it to the harness conventions and
+:mod:`repro.data.bvh` (a pool of worker threads), converts it to the harness conventions and
 publishes a compact cache under ``datasets_root()/bandai2/<fingerprint>/``; ``load_bandai2()``
 opens the last prepared cache memory-mapped.  The source is read by :mod:`repro.data.sources`
 (size caps) and the cache's layout is :mod:`repro.data.cache`'s, shared with every prepared
@@ -69,7 +69,7 @@ POS_TOL_CM = 1e-3
 OFFSET_TOL_CM = 1e-3
 #: Clips per conversion task (rotations and forward kinematics run batched over a task).
 BATCH = 16
-#: Folders with fewer BVH files than this are parsed in-process (a pool costs seconds to start).
+#: Folders with fewer BVH files than this are parsed in the caller's thread.
 POOL_MIN_FILES = 64
 
 ProgressFn = Callable[[int, "int | None"], None]
@@ -262,16 +262,16 @@ def convert_clip(label: str, data: bytes) -> dict:
     return convert_clips([(label, data)])[0]
 
 
-def _worker_init() -> None:
-    import torch
-
-    torch.set_num_threads(1)
-
-
-# ------------------------------------------------------------------------ prepare
 def _read_and_convert(source: Path, workers: int, progress: ProgressFn | None, total: int | None,
                       timings: dict):
-    """Stream the source once; convert BVH files in ``workers`` processes (0: in-process)."""
+    """Stream the source once; convert BVH files in ``workers`` threads (0: in the caller's).
+
+    Threads, not processes (issue 31): the work releases the GIL where it is heavy (the xz
+    decompression of the stream, the compiled MOTION reader, torch's rotation maths and
+    forward kinematics), so the conversion runs beside the decompression without a process's
+    start (torch imported again) and without pickling every file's bytes and arrays across.
+    torch runs one intra-op thread meanwhile (restored afterwards); results are taken in
+    submission order, so the cache is the same bytes whatever the number of workers."""
     clips: dict[str, dict] = {}
     annotations: dict[str, tuple[str, bytes]] = {}
     label_files: dict[str, tuple[str, bytes]] = {}
@@ -303,13 +303,17 @@ def _read_and_convert(source: Path, workers: int, progress: ProgressFn | None, t
         for res in convert_clips(batch) if batch else []:
             take(res)
     else:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor
+        from concurrent.futures import ThreadPoolExecutor
 
-        ex = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
-                                 initializer=_worker_init)
+        import torch
+
+        threads = torch.get_num_threads()
         pending: deque = deque()
+        ex = None
         try:
+            torch.set_num_threads(1)
+            ex = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="repro-prepare")
+
             def drain(limit: int) -> None:
                 while len(pending) > limit or (pending and pending[0].done()):
                     for res in pending.popleft().result():
@@ -330,7 +334,9 @@ def _read_and_convert(source: Path, workers: int, progress: ProgressFn | None, t
                 pending.append(ex.submit(convert_clips, batch))
             drain(0)
         finally:
-            ex.shutdown(wait=True, cancel_futures=True)
+            if ex is not None:
+                ex.shutdown(wait=True, cancel_futures=True)
+            torch.set_num_threads(threads)
     timings["read_parse_s"] = time.perf_counter() - t0
     return clips, annotations, label_files
 
@@ -371,7 +377,7 @@ def _labels(clips: dict, annotations: dict, label_files: dict, card: DatasetCard
 def _read_clips(source: Path, card: DatasetCard, workers: int, progress: ProgressFn | None,
                 timings: dict):
     """Every clip, annotation and label file of ``source`` (:func:`_read_and_convert`; a folder
-    of fewer than :data:`POOL_MIN_FILES` BVH files is parsed in-process)."""
+    of fewer than :data:`POOL_MIN_FILES` BVH files is parsed in the caller's thread)."""
     if source.is_dir():
         n_total = sum(1 for _ in source.rglob("*.bvh"))
         w = workers if n_total >= POOL_MIN_FILES else 0

@@ -16,8 +16,10 @@ Semantics used here (they are those of the stand-in data; see its SOURCE.md and 
   convert them, so read -> write -> read round-trips exactly (to the printed precision).
 
 Malformed input raises :class:`repro.errors.DataError` naming the file, the line and the problem.
-The MOTION block is parsed with one C-level numpy call per file (``np.loadtxt``); only when that
-call or a count check fails is the block walked line by line to find and name the culprit.  A
+The MOTION block is read in one compiled pass (:mod:`repro.data.bvh_numbers`: fixed-point
+decimals, bitwise what ``float`` reads); a block outside that subset goes to one C-level numpy
+call (``np.loadtxt``), and only when that call or a count check fails is the block walked line
+by line to find and name the culprit.  A
 HIERARCHY block seen before (byte for byte: the clips of one capture session share one) is not
 parsed again (:data:`_HIERARCHIES`).
 """
@@ -34,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from repro.data.bvh_numbers import read_rows
 from repro.errors import DataError
 
 #: Channel names accepted (case-insensitively) and their canonical spelling.
@@ -525,7 +528,9 @@ def _parse_frames(body: memoryview, n_frames: int, n_ch: int, source: str, first
             raise DataError(f"no channels are declared but {rows} frame lines follow",
                             source, first_line)
         return np.zeros((n_frames, 0))
-    arr = None
+    arr = read_rows(body, n_frames, n_ch)  # exact fixed-point subset, compiled (bvh_numbers)
+    if arr is not None:
+        return arr
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # "input contained no data" -> caught below

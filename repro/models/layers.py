@@ -5,9 +5,9 @@ The layers follow Vaswani et al. (2017) as PyTorch's ``nn.Transformer*Layer`` do
 :func:`torch.nn.functional.scaled_dot_product_attention` so that a decoder can run
 
 - **in parallel** over a whole sequence with a causal mask (training, teacher forcing), or
-- **one step at a time** with a :class:`DecoderCache` holding, per layer, the inputs of the
-  steps already taken, and the memory (both: what the keys/values are projected from).  Step
-  ``t`` then costs one token instead of ``t`` tokens.
+- **one step at a time** with a :class:`DecoderCache` holding, per layer, the projected
+  keys/values of the steps already taken and of the memory.  Step ``t`` then costs one token
+  instead of ``t`` tokens.
 
 Both paths compute the same function: the parallel causal output at position ``t`` equals the
 ``t``-th cached step (tested to 1e-5).
@@ -146,28 +146,31 @@ class DecoderCache:
     """Per-layer state for incremental decoding, allocated once by
     :meth:`TransformerDecoder.init_cache` and written in place by :meth:`TransformerDecoder.step`.
 
-    A head's keys and values are linear in what they are projected from (``k_j = W_k y_j +
-    b_k``), so the cache keeps that instead of the keys/values: ``inputs[i]`` (B, capacity, d)
-    holds layer ``i``'s inputs ``y_0..y_{length-1}`` of the steps taken so far (a step writes
-    its row and attends over the filled prefix: no step reallocates or copies the past), and
-    ``memory`` (B, Lk, d) the cross-attention memory, shared by every layer and never
-    projected.  That is half the bytes of keys plus values and no per-step key/value
-    projection; :func:`_step_attention` folds ``W_k`` into the query and ``W_v`` into the
-    output instead.  ``mem_bias``: the memory's padding as an additive (B, 1, Lk) mask,
-    ``None`` when no key is padded.  ``weights[i]``: layer ``i``'s weights laid out for
-    one-token steps (:meth:`DecoderLayer.step_weights`), copies made once per cache; the
-    module's parameters are untouched.
+    ``self_kv[i]``: layer ``i``'s self-attention keys, transposed, (B·H, dh, capacity) and
+    values (B·H, capacity, dh) of the steps taken so far; a step projects its own row once,
+    writes it at column/row ``length`` and attends over the filled prefix (no step reallocates
+    or copies the past).  ``mem_kv[i]``: the memory's keys, transposed, (B·H, dh, Lk) and
+    values (B·H, Lk, dh) for layer ``i``'s cross-attention, projected once per pass (the memory
+    is the same at every step).  ``mem_bias``: the memory's padding as an additive
+    (B·H, 1, Lk) mask, ``None`` when no key is padded.  ``weights[i]``: layer ``i``'s weights
+    laid out for one-token steps (:meth:`DecoderLayer.step_weights`), copies made once per
+    cache; the module's parameters are untouched.
+
+    Issue 31: until then the cache held each layer's *inputs* and the raw memory and folded
+    ``W_k`` into the query and ``W_v`` into the output at every step (per key ``d``
+    multiply-adds per head instead of ``dh``); the projected form above is 1.40x faster on the
+    paper-width sampler (docs/marionet.md, "Cached sampler").
     """
 
-    memory: torch.Tensor
+    mem_kv: list
     mem_bias: torch.Tensor | None
     weights: list
-    inputs: list = field(default_factory=list)
+    self_kv: list = field(default_factory=list)
     length: int = 0
 
     @property
     def capacity(self) -> int:
-        return int(self.inputs[0].shape[1]) if self.inputs else 0
+        return int(self.self_kv[0][1].shape[1]) if self.self_kv else 0
 
     def reserve(self, n: int) -> None:
         """Make room for at least ``n`` steps (doubling; a copy only when a caller decodes past
@@ -175,42 +178,69 @@ class DecoderCache:
         if n <= self.capacity:
             return
         cap = max(n, 2 * self.capacity)
-        for i, old in enumerate(self.inputs):
-            new = old.new_empty(old.shape[0], cap, old.shape[2])
-            new[:, :self.length] = old[:, :self.length]
-            self.inputs[i] = new
+        t = self.length
+        for i, (k_t, v) in enumerate(self.self_kv):
+            nk = k_t.new_empty(k_t.shape[0], k_t.shape[1], cap)
+            nv = v.new_empty(v.shape[0], cap, v.shape[2])
+            nk[:, :, :t] = k_t[:, :, :t]
+            nv[:, :t] = v[:, :t]
+            self.self_kv[i] = (nk, nv)
 
 
-def _step_attention_weights(mha: MultiHeadAttention) -> tuple:
-    """``mha``'s weights for :func:`_step_attention`: ``(q_w, q_b, w_k, w_v, out_w, out_b)``
-    with the query projection transposed and pre-scaled by ``1/sqrt(dh)``, ``w_k`` (H, dh, d)
-    and ``w_v`` (H, d, dh) per head, the output projection transposed and its bias absorbing
-    the value bias (``out(o + b_v) = o W_out^T + (b_v W_out^T + b_out)``; attention weights sum
-    to 1).  The key bias is dropped: it shifts every score of a head by ``q_h · b_k,h``, which
-    the softmax ignores."""
-    H, d = mha.n_heads, mha.d_model
-    dh = d // H
-    s = 1.0 / math.sqrt(dh)
+def _step_cross_weights(mha: MultiHeadAttention) -> tuple:
+    """``mha``'s query and output weights for :func:`_step_cross_attention`: ``(q_w, q_b,
+    out_w, out_b)``, the query projection transposed and pre-scaled by ``1/sqrt(dh)``, the
+    output projection transposed."""
+    s = 1.0 / math.sqrt(mha.d_model // mha.n_heads)
     return ((mha.q.weight * s).t().contiguous(), mha.q.bias * s,
-            mha.k.weight.view(H, dh, d).contiguous(),
-            mha.v.weight.view(H, dh, d).transpose(1, 2).contiguous(),
-            mha.out.weight.t().contiguous(), torch.addmv(mha.out.bias, mha.out.weight, mha.v.bias))
+            mha.out.weight.t().contiguous(), mha.out.bias)
 
 
-def _step_attention(x, weights: tuple, inputs, bias=None) -> torch.Tensor:
-    """Multi-head attention (incl. the output projection) of one query row per item ``x`` (B, d)
-    over keys/values projected from ``inputs`` (B, L, d), computed without projecting them:
-    per head ``a = softmax((W_k,h^T q_h) · y_j + bias_j)`` and ``o_h = W_v,h Σ_j a_j y_j``
-    (``weights`` from :func:`_step_attention_weights`)."""
-    q_w, q_b, w_k, w_v, out_w, out_b = weights
+def _memory_kv(mha: MultiHeadAttention, memory: torch.Tensor) -> tuple:
+    """The memory's keys, transposed, (B·H, dh, Lk) and values (B·H, Lk, dh), projected once."""
+    B, Lk, d = memory.shape
+    k, v = mha.project_kv(memory)                                       # (B, H, Lk, dh)
+    H, dh = k.shape[1], k.shape[3]
+    return (k.transpose(2, 3).reshape(B * H, dh, Lk).contiguous(),
+            v.reshape(B * H, Lk, dh).contiguous())
+
+
+def _step_self_weights(mha: MultiHeadAttention) -> tuple:
+    """``mha``'s weights for a one-token self-attention step: ``(qkv_w, qkv_b, out_w,
+    out_b)``, the query, key and value projections stacked and transposed (B, 3d) in one
+    ``addmm``, the query's part pre-scaled by ``1/sqrt(dh)``."""
+    s = 1.0 / math.sqrt(mha.d_model // mha.n_heads)
+    w = torch.cat([mha.q.weight * s, mha.k.weight, mha.v.weight])
+    b = torch.cat([mha.q.bias * s, mha.k.bias, mha.v.bias])
+    return w.t().contiguous(), b, mha.out.weight.t().contiguous(), mha.out.bias
+
+
+def _step_self_attention(x, weights: tuple, self_kv: tuple, t: int) -> torch.Tensor:
+    """One query row per item ``x`` (B, d) attending to the cached keys/values of steps
+    ``0..t-1`` and its own, written at ``t`` (``self_kv``: keys transposed (B·H, dh, cap),
+    values (B·H, cap, dh))."""
+    qkv_w, qkv_b, out_w, out_b = weights
+    keys_t, values = self_kv
     B, d = x.shape
-    H = w_k.shape[0]
-    q = torch.addmm(q_b, x, q_w).view(B, H, -1).transpose(0, 1)       # (H, B, dh), scaled
-    qk = torch.bmm(q, w_k).transpose(0, 1)                              # (B, H, d)
-    keys = inputs.transpose(1, 2)
-    scores = torch.bmm(qk, keys) if bias is None else torch.baddbmm(bias, qk, keys)
-    ctx = torch.bmm(scores.softmax(-1), inputs).transpose(0, 1)         # (H, B, d)
-    o = torch.bmm(ctx, w_v).transpose(0, 1).reshape(B, d)               # (B, d)
+    dh = keys_t.shape[1]
+    q, k, v = torch.addmm(qkv_b, x, qkv_w).split(d, dim=1)
+    keys_t[:, :, t] = k.reshape(-1, dh)
+    values[:, t] = v.reshape(-1, dh)
+    scores = torch.bmm(q.reshape(-1, 1, dh), keys_t[:, :, :t + 1])
+    o = torch.bmm(scores.softmax(-1), values[:, :t + 1]).view(B, d)
+    return torch.addmm(out_b, o, out_w)
+
+
+def _step_cross_attention(x, weights: tuple, mem_kv: tuple, bias=None) -> torch.Tensor:
+    """Multi-head attention (incl. the output projection) of one query row per item ``x``
+    (B, d) over keys/values projected once from the memory (:func:`_memory_kv`)."""
+    q_w, q_b, out_w, out_b = weights
+    keys_t, values = mem_kv
+    B, d = x.shape
+    dh = keys_t.shape[1]
+    q = torch.addmm(q_b, x, q_w).view(-1, 1, dh)                        # (B·H, 1, dh), scaled
+    scores = torch.bmm(q, keys_t) if bias is None else torch.baddbmm(bias, q, keys_t)
+    o = torch.bmm(scores.softmax(-1), values).view(B, d)                # heads in order
     return torch.addmm(out_b, o, out_w)
 
 
@@ -238,26 +268,24 @@ class DecoderLayer(nn.Module):
         return self._tail(x, mk, mv, mem_padding_mask)
 
     def step_weights(self) -> tuple:
-        """This layer's weights for :meth:`step`: the self- and cross-attention's
-        (:func:`_step_attention_weights`) and the feed-forward's ``(W1^T, b1, W2^T, b2)``
+        """This layer's weights for :meth:`step`: the self-attention's
+        (:func:`_step_self_weights`), the cross-attention's (:func:`_step_cross_weights`)
+        and the feed-forward's ``(W1^T, b1, W2^T, b2)``
         (contiguous transposed copies, for ``addmm`` without a per-call transpose); made once
         per decoding pass."""
         ff = self.ff
-        return (_step_attention_weights(self.self_attn), _step_attention_weights(self.cross_attn),
+        return (_step_self_weights(self.self_attn), _step_cross_weights(self.cross_attn),
                 (ff.lin1.weight.t().contiguous(), ff.lin1.bias,
                  ff.lin2.weight.t().contiguous(), ff.lin2.bias))
 
     def step(self, x, cache: DecoderCache, i: int):
         """One new position ``x`` (B, d) attending to the cached past and itself, then to the
-        memory (inference: no dropout): :meth:`forward` at one position.  Writes ``x`` at row
-        ``cache.length`` of layer ``i``'s inputs; :meth:`TransformerDecoder.step` advances the
-        length after the last layer."""
+        memory (inference: no dropout): :meth:`forward` at one position.  Writes its key and
+        value at position ``cache.length`` of layer ``i``'s cache;
+        :meth:`TransformerDecoder.step` advances the length after the last layer."""
         self_w, cross_w, (f1_w, f1_b, f2_w, f2_b) = cache.weights[i]
-        t = cache.length
-        inputs = cache.inputs[i]
-        inputs[:, t] = x
-        x = self.norm1(x + _step_attention(x, self_w, inputs[:, :t + 1]))
-        x = self.norm2(x + _step_attention(x, cross_w, cache.memory, cache.mem_bias))
+        x = self.norm1(x + _step_self_attention(x, self_w, cache.self_kv[i], cache.length))
+        x = self.norm2(x + _step_cross_attention(x, cross_w, cache.mem_kv[i], cache.mem_bias))
         return self.norm3(x + torch.addmm(f2_b, self.ff.act(torch.addmm(f1_b, x, f1_w)), f2_w))
 
 
@@ -280,23 +308,28 @@ class TransformerDecoder(nn.Module):
     @torch.inference_mode()
     def init_cache(self, memory: torch.Tensor, mem_padding_mask=None,
                    max_len: int | None = None) -> DecoderCache:
-        """Everything a decoding pass reuses, made once: the memory (contiguous), per layer the
-        step weights (:meth:`DecoderLayer.step_weights`) and an input buffer for ``max_len``
-        steps (default: the memory's length; :meth:`step` grows them if a caller goes
-        further), the padding mask as an additive mask.  Inference only."""
+        """Everything a decoding pass reuses, made once: per layer the memory's projected keys
+        and values (:func:`_memory_kv`), the step weights (:meth:`DecoderLayer.step_weights`)
+        and key/value buffers for ``max_len`` steps (default: the memory's length; :meth:`step`
+        grows them if a caller goes further), the padding mask as an additive mask.
+        Inference only."""
         B, Lk, d = memory.shape
+        H = self.layers[0].cross_attn.n_heads if len(self.layers) else 1
         cap = Lk if max_len is None else max(1, int(max_len))
         bias = None
         if mem_padding_mask is not None and bool(mem_padding_mask.any()):
-            bias = _padding_to_additive(mem_padding_mask, memory.dtype)[:, 0]
-        return DecoderCache(memory.contiguous(), bias,
+            bias = (_padding_to_additive(mem_padding_mask, memory.dtype)
+                    .expand(B, H, 1, Lk).reshape(B * H, 1, Lk))
+        return DecoderCache([_memory_kv(layer.cross_attn, memory) for layer in self.layers],
+                            bias,
                             [layer.step_weights() for layer in self.layers],
-                            [memory.new_empty(B, cap, d) for _ in self.layers])
+                            [(memory.new_empty(B * H, d // H, cap),
+                              memory.new_empty(B * H, cap, d // H)) for _ in self.layers])
 
     @torch.inference_mode()
     def step(self, x: torch.Tensor, cache: DecoderCache) -> torch.Tensor:
-        """Decode one position ``x`` (B, 1, d); writes each layer's input into ``cache`` and
-        advances ``cache.length``.  Inference only (dropout off, no gradient)."""
+        """Decode one position ``x`` (B, 1, d); writes each layer's key and value into
+        ``cache`` and advances ``cache.length``.  Inference only (dropout off, no gradient)."""
         cache.reserve(cache.length + 1)
         B = x.shape[0]
         x = x.reshape(B, -1)

@@ -16,7 +16,7 @@ Network (Sec. 4.2.1, Fig. 3; widths from supp. Table 2, read in docs/marionet.md
 - **Motion Decoder**: a causal transformer decoder; query = embedded poses ``P_0..P_{T−1}``
   (+ positions), key/value = the controls; output ``P*_1..P*_T`` through ``pose_decode``.
   ``P_0`` (the BOP) is the last initial pose.  Inference runs frame by frame on a cache of
-  what the keys/values are projected from (:class:`repro.models.layers.DecoderCache`).
+  projected keys/values (:class:`repro.models.layers.DecoderCache`).
 
 Training (Sec. 4.2.2, supp. Sec. 3): ``L = λ1·L_Recon(P') + λ2·L_Recon(P'') + λ_KL·L_KL``
 (Eq. 2), ``L_Recon = λ_R·L_R + λ_D·L_D + λ_J·L_J`` (Eq. 1a), each term a per-frame squared
