@@ -19,9 +19,8 @@ Malformed input raises :class:`repro.errors.DataError` naming the file, the line
 The MOTION block is read in one compiled pass (:mod:`repro.data.bvh_numbers`: fixed-point
 decimals, bitwise what ``float`` reads); a block outside that subset goes to one C-level numpy
 call (``np.loadtxt``), and only when that call or a count check fails is the block walked line
-by line to find and name the culprit.  A
-HIERARCHY block seen before (byte for byte: the clips of one capture session share one) is not
-parsed again (:data:`_HIERARCHIES`).
+by line to find and name the culprit.  A HIERARCHY block seen before (byte for byte: the clips
+of one capture session share one) is not parsed again (:data:`_HIERARCHIES`).
 """
 
 from __future__ import annotations

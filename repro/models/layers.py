@@ -198,11 +198,19 @@ def _step_cross_weights(mha: MultiHeadAttention) -> tuple:
 
 def _memory_kv(mha: MultiHeadAttention, memory: torch.Tensor) -> tuple:
     """The memory's keys, transposed, (B·H, dh, Lk) and values (B·H, Lk, dh), projected once."""
-    B, Lk, d = memory.shape
     k, v = mha.project_kv(memory)                                       # (B, H, Lk, dh)
-    H, dh = k.shape[1], k.shape[3]
+    B, H, Lk, dh = k.shape
     return (k.transpose(2, 3).reshape(B * H, dh, Lk).contiguous(),
             v.reshape(B * H, Lk, dh).contiguous())
+
+
+def _attend_cached(q, keys_t, values, out_w, out_b, bias=None) -> torch.Tensor:
+    """Scaled queries ``q`` (B·H, 1, dh) over cached keys, transposed, (B·H, dh, L) and values
+    (B·H, L, dh), with an optional additive mask; the heads concatenated in order (B, d) and
+    put through the output projection (``out_w`` transposed)."""
+    scores = torch.bmm(q, keys_t) if bias is None else torch.baddbmm(bias, q, keys_t)
+    o = torch.bmm(scores.softmax(-1), values)
+    return torch.addmm(out_b, o.view(-1, out_w.shape[0]), out_w)
 
 
 def _step_self_weights(mha: MultiHeadAttention) -> tuple:
@@ -221,14 +229,12 @@ def _step_self_attention(x, weights: tuple, self_kv: tuple, t: int) -> torch.Ten
     values (B·H, cap, dh))."""
     qkv_w, qkv_b, out_w, out_b = weights
     keys_t, values = self_kv
-    B, d = x.shape
     dh = keys_t.shape[1]
-    q, k, v = torch.addmm(qkv_b, x, qkv_w).split(d, dim=1)
+    q, k, v = torch.addmm(qkv_b, x, qkv_w).split(x.shape[1], dim=1)
     keys_t[:, :, t] = k.reshape(-1, dh)
     values[:, t] = v.reshape(-1, dh)
-    scores = torch.bmm(q.reshape(-1, 1, dh), keys_t[:, :, :t + 1])
-    o = torch.bmm(scores.softmax(-1), values[:, :t + 1]).view(B, d)
-    return torch.addmm(out_b, o, out_w)
+    return _attend_cached(q.reshape(-1, 1, dh), keys_t[:, :, :t + 1], values[:, :t + 1],
+                          out_w, out_b)
 
 
 def _step_cross_attention(x, weights: tuple, mem_kv: tuple, bias=None) -> torch.Tensor:
@@ -236,12 +242,8 @@ def _step_cross_attention(x, weights: tuple, mem_kv: tuple, bias=None) -> torch.
     (B, d) over keys/values projected once from the memory (:func:`_memory_kv`)."""
     q_w, q_b, out_w, out_b = weights
     keys_t, values = mem_kv
-    B, d = x.shape
-    dh = keys_t.shape[1]
-    q = torch.addmm(q_b, x, q_w).view(-1, 1, dh)                        # (B·H, 1, dh), scaled
-    scores = torch.bmm(q, keys_t) if bias is None else torch.baddbmm(bias, q, keys_t)
-    o = torch.bmm(scores.softmax(-1), values).view(B, d)                # heads in order
-    return torch.addmm(out_b, o, out_w)
+    q = torch.addmm(q_b, x, q_w).view(-1, 1, keys_t.shape[1])          # (B·H, 1, dh), scaled
+    return _attend_cached(q, keys_t, values, out_w, out_b, bias)
 
 
 class DecoderLayer(nn.Module):
