@@ -134,8 +134,10 @@ def import_before(commit: str, relpath: str, *, stand_ins=None):
     if not path.is_file():
         raise BeforeUnavailable(f"{relpath} does not exist at commit {sha[:12]}")
     name = f"_before_{sha[:12]}_" + relpath.removesuffix(".py").replace("/", "_")
-    saved = {m: dict(importlib.import_module(m)._REGISTRY) for m in _REGISTRIES}
+    # the stand-ins first: building them imports today's modules, whose registrations must
+    # survive the restore below
     stand_ins = moved_modules() if stand_ins is None else dict(stand_ins)
+    saved = {m: dict(importlib.import_module(m)._REGISTRY) for m in _REGISTRIES}
     added = [m for m in stand_ins if m not in sys.modules]
     try:
         for m in added:

@@ -39,7 +39,8 @@ ROOT = Path(__file__).resolve().parents[1]
 BATTERY = ROOT / "benchmarks" / "kernel_ops.py"
 GOLDEN = ROOT / "tests" / "golden" / "kernel_ops.json"
 AMBIENT = ("ATEN_CPU_CAPABILITY", "MKL_CBWR", "ONEDNN_MAX_CPU_ISA", "DNNL_MAX_CPU_ISA",
-           "OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES", "MKL_DYNAMIC", "OMP_DYNAMIC",
+           "OPENBLAS_CORETYPE", "OPENBLAS_NUM_THREADS", "NPY_DISABLE_CPU_FEATURES",
+           "MKL_DYNAMIC", "OMP_DYNAMIC",
            "REPRO_FAST_KERNELS")
 
 

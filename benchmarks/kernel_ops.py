@@ -97,6 +97,26 @@ def battery() -> dict[str, str]:
         out[name] = _h(lin.weight)
     torch.manual_seed(5)
     out["dropout"] = _h(F.dropout(x, 0.3))
+    # issue 31's layers: dropout from 64-bit integer draws, Conv1d as an unfolded product
+    # (repro.gemm), a linear layer's addmm with its gradient
+    from repro.models import layers
+
+    torch.manual_seed(5)
+    out["dropout_repro"] = _h(layers.dropout(x, 0.3))
+    torch.manual_seed(0)
+    rconv = layers.Conv1d(64, 64, 5, padding=2, padding_mode="replicate")
+    xr = x.transpose(1, 2).clone().requires_grad_()
+    y5 = rconv(xr)
+    y5.pow(2).mean().backward()
+    out.update(conv_repro=_h(y5), conv_repro_grad=_h(rconv.weight.grad),
+               conv_repro_input_grad=_h(xr.grad))
+    lin = torch.nn.Linear(64, 48)
+    xl = x.clone().requires_grad_()
+    y6 = lin(xl)
+    y6.pow(2).mean().backward()
+    out.update(linear=_h(y6), linear_grad=_h(lin.weight.grad), linear_input_grad=_h(xl.grad),
+               baddbmm=_h(torch.baddbmm(x[:, :8, :8], x[:, :8], x.transpose(1, 2)[:, :, :8],
+                                        beta=0.5, alpha=2.0)))
     out["randn"] = _h(torch.randn(1000, generator=torch.Generator().manual_seed(1)))
     a = np.random.default_rng(0).standard_normal((50, 20))
     out.update(np_exp=_h(np.exp(a)), np_log=_h(np.log(np.abs(a))), np_sin=_h(np.sin(a)),

@@ -175,6 +175,49 @@ def _escape_rich_segments() -> bool:
     return True
 
 
+class _PatchRichOnImport:
+    """A one-shot ``sys.meta_path`` finder: when ``rich.console`` is first imported, the module
+    is executed as usual and :func:`_escape_rich_segments` patches it right after, before any
+    code can render with it.  So a command that never styles anything (``repro plan``) does not
+    pay rich's import (~40 ms) for the guard (issue 31: ``repro plan`` <= 0.5 s)."""
+
+    def find_spec(self, fullname, path=None, target=None):
+        if fullname != "rich.console":
+            return None
+        if self in sys.meta_path:
+            sys.meta_path.remove(self)  # one shot: the look-up below must not come back here
+        import importlib.util
+
+        spec = importlib.util.find_spec(fullname)
+        if spec is None or spec.loader is None or not hasattr(spec.loader, "exec_module"):
+            return spec
+        loader_exec = spec.loader.exec_module
+
+        def exec_module(module):
+            loader_exec(module)
+            _escape_rich_segments()
+
+        spec.loader.exec_module = exec_module  # this spec's own loader instance
+        return spec
+
+
+#: the finder :func:`_patch_rich_when_imported` put in ``sys.meta_path`` (None: none pending)
+_RICH_FINDER: _PatchRichOnImport | None = None
+
+
+def _patch_rich_when_imported() -> None:
+    """:func:`_escape_rich_segments` now if rich's console is loaded, else as soon as it is
+    (:class:`_PatchRichOnImport`), once per process."""
+    global _RICH_FINDER
+    if _RICH_ESCAPES:
+        return
+    if "rich.console" in sys.modules:
+        _escape_rich_segments()
+    elif _RICH_FINDER is None or _RICH_FINDER not in sys.meta_path:
+        _RICH_FINDER = _PatchRichOnImport()
+        sys.meta_path.insert(0, _RICH_FINDER)
+
+
 def _escaping_excepthook(kind, value, tb) -> None:
     """``sys.excepthook`` of a repro process: a traceback (a bug: every expected failure is one
     line) printed with its controls escaped too, as the exception's message may quote data."""
@@ -190,7 +233,7 @@ class terminal_guard:
     after that, is escaped by :func:`_escaping_excepthook` (installed unless another hook is)."""
 
     def __enter__(self):
-        _escape_rich_segments()
+        _patch_rich_when_imported()
         self.hook = sys.excepthook
         if sys.excepthook is sys.__excepthook__:
             sys.excepthook = _escaping_excepthook

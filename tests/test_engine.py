@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from repro import kernels
 from repro.engine.executor import execute
 from repro.engine.job import Job, topo_order
 from repro.engine.job_run import COMPUTED, FAILED, HIT, SKIPPED, UNCACHED
@@ -176,7 +177,8 @@ def test_key_is_order_invariant_and_sensitive_to_every_part(jobs_module):
     parts = j.key_parts()
     assert set(parts) == {"schema", "kind", "impl", "source", "config", "inputs",
                           "fingerprints", "seed", "threads", "plugins", "kernels"}
-    assert parts["kernels"] == {"mode": "pinned", "pin": "x86-64-avx2-portable", "version": 1}
+    assert parts["kernels"] == {"mode": "pinned", "pin": "x86-64-avx2-portable",
+                                "version": kernels.PIN_VERSION}
     assert parts["inputs"] == [prep.key()]
     # configs are copied: mutating the caller's dict changes nothing
     cfg = {"lr": 0.1}

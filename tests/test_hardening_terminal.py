@@ -158,3 +158,29 @@ def test_styling_passes_through_rich_s_own_stream_redirection(monkeypatch):
     assert "\x1b[1mjob \\x1b]0;PWNED\\x1b[2J\x1b[0m" in got  # rich's bold, the data escaped
     assert "printed meanwhile " in got  # (rich's FileProxy reads a print as ANSI: drops codes)
     assert "\x1b]" not in got and "\x1b[2J" not in got and "\x07" not in got
+
+
+def test_rich_imported_after_the_guard_is_patched_before_it_renders():
+    """The guard does not import rich (``repro plan`` prints without it: issue 31's 0.5 s); a
+    rich imported later, inside the guard, is patched as it loads: its styling passes, the
+    data inside is escaped.  In a fresh process, so rich is not loaded beforehand."""
+    code = ("import io, sys\n"
+            "import cli.main as m\n"
+            "raw = io.StringIO(); raw.isatty = lambda: True; sys.stdout = raw\n"
+            "with m.terminal_guard():\n"
+            "    assert 'rich.console' not in sys.modules, 'the guard imported rich'\n"
+            "    from rich.console import Console\n"
+            "    from rich.text import Text\n"
+            "    Console(force_terminal=True, color_system='standard').print(\n"
+            f"        Text('clip ' + {EVIL!r}, style='bold'))\n"
+            "sys.stdout = sys.__stdout__\n"
+            "print(repr(raw.getvalue()))\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=60, cwd=Path(__file__).resolve().parents[1])
+    assert proc.returncode == 0, proc.stderr
+    import ast
+
+    got = ast.literal_eval(proc.stdout.strip())
+    assert got.startswith("\x1b[1m")  # rich's bold, raw
+    assert "clip \\x1b]0;PWNED" in got and "\\x1b[2J" in got  # (rich drops the BEL itself)
+    assert "\x1b]" not in got and "\x1b[2J" not in got

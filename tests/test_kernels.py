@@ -21,7 +21,8 @@ from repro.errors import ConfigError
 ROOT = Path(__file__).resolve().parents[1]
 BATTERY = ROOT / "benchmarks" / "kernel_ops.py"
 AMBIENT = ("ATEN_CPU_CAPABILITY", "MKL_CBWR", "ONEDNN_MAX_CPU_ISA", "DNNL_MAX_CPU_ISA",
-           "OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES", "MKL_DYNAMIC", "OMP_DYNAMIC",
+           "OPENBLAS_CORETYPE", "OPENBLAS_NUM_THREADS", "NPY_DISABLE_CPU_FEATURES",
+           "MKL_DYNAMIC", "OMP_DYNAMIC",
            kernels.FAST_ENV)
 
 

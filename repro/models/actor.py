@@ -54,7 +54,8 @@ from repro.models.actor_config import ACTOR, ACTORConfig
 from repro.models.base import Generator, register
 from repro.models.baseline_io import (check_items, item_noise, length_mask, pack_poses,
                                       pose_dim, pose_joints, to_generated)
-from repro.models.layers import TransformerDecoder, TransformerEncoder, sinusoidal_encoding
+from repro.models.layers import (Dropout, TransformerDecoder, TransformerEncoder,
+                                 sinusoidal_encoding)
 from repro.seeding import derive_seed
 from repro.train.loop import to_device
 
@@ -76,7 +77,7 @@ class ACTORNet(nn.Module):
         self.decoder = TransformerDecoder(cfg.num_layers, d, cfg.num_heads, cfg.ff_size,
                                           cfg.dropout, cfg.activation)
         self.final = nn.Linear(d, P)
-        self.pos_drop = nn.Dropout(cfg.dropout)
+        self.pos_drop = Dropout(cfg.dropout)
 
     def _positions(self, x: torch.Tensor) -> torch.Tensor:
         pe = sinusoidal_encoding(torch.arange(x.shape[1], device=x.device), self.cfg.latent_dim)

@@ -57,8 +57,8 @@ from torch import nn
 
 from repro import kernels
 from repro.models.baseline_io import length_mask
-from repro.models.layers import (TransformerDecoder, TransformerEncoder, activation_fn,
-                                 sinusoidal_encoding)
+from repro.models.layers import (Conv1d, Dropout, TransformerDecoder, TransformerEncoder,
+                                 activation_fn, sinusoidal_encoding)
 
 #: Default kernel of the encoder's and decoder's temporal convolutions (the released code's
 #: Conv2d kernels (5, d); the paper is silent): ``MACVAEConfig.temporal_kernel``.
@@ -100,7 +100,7 @@ class TemporalConv(nn.Module):
         if kernel < 1 or (not causal and kernel % 2 == 0):
             raise ValueError("a centred temporal kernel must be odd and >= 1")
         self.kernel, self.causal = int(kernel), bool(causal)
-        self.conv = nn.Conv1d(d, d if d_out is None else d_out, self.kernel)
+        self.conv = Conv1d(d, d if d_out is None else d_out, self.kernel)
 
     def forward(self, x: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
         T, k = x.shape[1], self.kernel
@@ -119,7 +119,7 @@ class FrameMLP(nn.Module):
     def __init__(self, d: int, layers: int, dropout: float, activation: str):
         super().__init__()
         self.lins = nn.ModuleList(nn.Linear(d, d) for _ in range(layers))
-        self.drop = nn.Dropout(dropout)
+        self.drop = Dropout(dropout)
         self.act = activation_fn(activation)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -141,7 +141,7 @@ class EncoderBackbone(nn.Module):
         super().__init__()
         self.kind, d = cfg.backbone, cfg.d_model
         self.pe_kind = cfg.pos_encoding
-        self.pos_drop = nn.Dropout(cfg.dropout)
+        self.pos_drop = Dropout(cfg.dropout)
         if self.kind == "transformer":
             self.net = TransformerEncoder(cfg.layers, d, cfg.heads, cfg.ff_size, cfg.dropout,
                                           cfg.activation)
@@ -217,7 +217,7 @@ class DecoderBackbone(nn.Module):
         self.causal = bool(cfg.decoder_causal)
         self.layered = bool(cfg.transition_pos_enc)
         self.pe_kind = cfg.pos_encoding
-        self.pos_drop = nn.Dropout(cfg.dropout)
+        self.pos_drop = Dropout(cfg.dropout)
         if self.kind == "transformer":
             self.net = TransformerDecoder(cfg.layers, d, cfg.heads, cfg.ff_size, cfg.dropout,
                                           cfg.activation)
@@ -284,7 +284,7 @@ class MACVAENet(nn.Module):
             self.final = nn.Linear(d, P)
         # postprocessor: the reference's Conv2d(1, P, kernel (5, P)) over the (L, P) image is
         # exactly this Conv1d(P, P, 5) over time
-        self.postprocessor = nn.Conv1d(P, P, POST_KERNEL) if cfg.postprocessor else None
+        self.postprocessor = Conv1d(P, P, POST_KERNEL) if cfg.postprocessor else None
 
     # -- encoder -------------------------------------------------------------------------------
     def pooling_weights(self, l_p, l_t, l_c, L: int) -> list[torch.Tensor]:

@@ -59,6 +59,7 @@ from repro.data.action_items import ActionItems, GeneratedItems, pad_last
 from repro.models.base import Generator, epoch_batches, register
 from repro.models.baseline_io import (check_items, pack_poses, pose_joints, to_generated,
                                       unpack_poses)
+from repro.models.layers import Dropout
 from repro.models.mann_config import MANN, MANNConfig
 from repro.motion.rotations import matrix_to_6d, sixd_to_matrix
 from repro.seeding import derive_seed
@@ -119,7 +120,7 @@ class MANNNet(nn.Module):
         self.layer0 = ExpertLinear(K, n_in, h)
         self.layer1 = ExpertLinear(K, h, h)
         self.layer2 = ExpertLinear(K, h, n_out)
-        self.drop = nn.Dropout(cfg.dropout)
+        self.drop = Dropout(cfg.dropout)
 
     def blend(self, xn: torch.Tensor) -> torch.Tensor:
         """Blending coefficients ω (B, K) from the normalised input's gating columns."""

@@ -97,7 +97,7 @@ from repro.models.baseline_io import (
     pose_joints,
     unpack_poses,
 )
-from repro.models.layers import TransformerEncoder
+from repro.models.layers import Conv1d, Dropout, TransformerEncoder
 from repro.models.ssmct_config import SSMCT, SSMCTConfig
 from repro.motion.canon import canonicalize_with, face_front, uncanonicalize
 from repro.motion.motion import Motion
@@ -122,14 +122,14 @@ class SSMCTNet(nn.Module):
     def __init__(self, cfg: SSMCTConfig, n_joints: int):
         super().__init__()
         d, P, k = cfg.d_model, pose_dim(n_joints), cfg.kernel_size
-        self.conv_in = nn.Conv1d(P, d, k, padding=k // 2, padding_mode="replicate")
+        self.conv_in = Conv1d(P, d, k, padding=k // 2, padding_mode="replicate")
         self.position = nn.Embedding(cfg.max_window, d)
         self.keyframe = nn.Embedding(3, d)
         self.norm = nn.LayerNorm(d)
-        self.drop = nn.Dropout(cfg.dropout)
+        self.drop = Dropout(cfg.dropout)
         self.encoder = TransformerEncoder(cfg.layers, d, cfg.heads, cfg.ff_size, cfg.dropout,
                                           cfg.activation)
-        self.conv_out = nn.Conv1d(d, P, k, padding=k // 2, padding_mode="replicate")
+        self.conv_out = Conv1d(d, P, k, padding=k // 2, padding_mode="replicate")
 
     def forward(self, x: torch.Tensor, kind: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
         W = x.shape[1]

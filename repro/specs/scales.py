@@ -300,6 +300,29 @@ def load_scales(path: str | Path | None = None) -> ScaleFile:
         raise SpecValidationError(problems_from_validation(e, data, ScaleFile, shown), shown) from None
 
 
+#: the last :func:`load_scales` of :func:`resolve_scale`, by file: (path, inode, size, mtime) ->
+#: the validated file.  A command resolves its profile several times (plan, jobs, footer);
+#: parsing and validating the TOML each time was ~40 ms of ``repro plan`` (issue 31).  An
+#: edited file (another size or mtime) is read again.
+_SCALES_MEMO: dict[tuple, ScaleFile] = {}
+
+
+def _scales_of(path: Path) -> ScaleFile:
+    """:func:`load_scales` of ``path``, memoised per process while the file is unchanged
+    (resolve_scale only reads the result)."""
+    try:
+        st = path.stat()
+        sig = (str(path.resolve()), st.st_ino, st.st_size, st.st_mtime_ns)
+    except OSError:
+        return load_scales(path)  # its own error names the file
+    sf = _SCALES_MEMO.get(sig)
+    if sf is None:
+        sf = load_scales(path)
+        _SCALES_MEMO.clear()
+        _SCALES_MEMO[sig] = sf
+    return sf
+
+
 #: ``--device`` of the running command (None: each profile's own device)
 _DEVICE_OVERRIDE: ContextVar[str | None] = ContextVar("repro_device_override", default=None)
 
@@ -382,7 +405,7 @@ def resolve_scale(name: str, dataset: str | None = None, *, path: str | Path | N
         if dataset not in REGISTERED:
             raise ConfigError(unknown_dataset_message(dataset))
     path = Path(path) if path is not None else scales_path()
-    sf = load_scales(path)
+    sf = _scales_of(path)
     prof: ScaleProfile | None = getattr(sf, name)
     if prof is None:
         from repro.specs.load import display_path
