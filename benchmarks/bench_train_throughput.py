@@ -16,7 +16,9 @@ alike), ``--repeats`` times each:
   :func:`repro.models.layers.dropout`'s, ``nn.Conv1d``'s own kernel (im2col on MKL) instead of
   :class:`repro.models.layers.Conv1d`'s unfolded product, and the attention of that commit
   (SDPA with its own weight dropout; ``MultiHeadAttention.attend`` imported from git history
-  by ``benchmarks/_before.py``).  Everything else is identical at the two commits;
+  by ``benchmarks/_before.py``).  Everything else is identical at the two commits, but for
+  one setting of the process: numpy's OpenBLAS runs one thread under pin v2 in both paths
+  (at a681c37 it ran as many as the machine has; no method's step calls numpy's BLAS);
 - ``after``: the library as it is.
 
 Printed per method: the batch unit (items; MANN: frame pairs; ODMO: window pairs; DLow-Gen:
@@ -175,8 +177,9 @@ def _torch_dropout(self, x):
 def before_paths(commit: str = BEFORE):
     """Within the block every training runs the paths issue 31 changed as they were at
     ``commit`` (module docstring): torch's matrix products, ``nn.Dropout``'s masks,
-    ``nn.Conv1d``'s kernel and the old attention (``MultiHeadAttention.attend`` from git history); on exit the library's are back
-    (``repro.gemm`` installed again).  BeforeUnavailable without that history."""
+    ``nn.Conv1d``'s kernel and the old attention (``MultiHeadAttention.attend`` from git
+    history); on exit the library's are back (``repro.gemm`` installed again).
+    BeforeUnavailable without that history."""
     from repro import gemm, kernels
     from repro.models import layers
 
@@ -191,6 +194,17 @@ def before_paths(commit: str = BEFORE):
             yield
     finally:
         gemm.install()
+
+
+def before_available(who: str) -> bool:
+    """Whether ``BEFORE``'s code can be read from the git history (imported up front, so that a
+    missing history ends before any training); says why not on stderr as ``who``."""
+    try:
+        import_before(BEFORE, "repro/models/layers.py")
+    except BeforeUnavailable as e:
+        print(f"{who}: no 'before' code: {e}", file=sys.stderr)
+        return False
+    return True
 
 
 def run_path(path: str, method: str, cfg: dict, clips, train_items, steps: int):
@@ -212,7 +226,7 @@ def run_path(path: str, method: str, cfg: dict, clips, train_items, steps: int):
     return cap, weights
 
 
-def _head() -> str:
+def head_commit() -> str:
     """The checked-out commit (``+dirty`` when the working tree differs), or "unknown"."""
     import subprocess
 
@@ -253,10 +267,7 @@ def main(argv=None) -> int:
     from repro.specs.scales import resolve_scale
     from repro.train.validation import holdout
 
-    try:  # the old code imported up front: no history, no "before" (exit 2)
-        import_before(BEFORE, "repro/models/layers.py")
-    except BeforeUnavailable as e:
-        print(f"bench: no 'before' code: {e}", file=sys.stderr)
+    if not before_available("bench"):  # no history, no "before" (exit 2)
         return 2
     try:
         scale = resolve_scale(a.scale)
@@ -315,7 +326,7 @@ def main(argv=None) -> int:
         import json
 
         out = {"schema": 1, "benchmark": "bench_train_throughput", "before": BEFORE,
-               "after": _head(), "scale": a.scale, "dataset": dataset, "steps": a.steps,
+               "after": head_commit(), "scale": a.scale, "dataset": dataset, "steps": a.steps,
                "repeats": a.repeats, "threads": torch.get_num_threads(),
                "torch": torch.__version__, "host": kernels.host_paths(), "methods": results}
         Path(a.json).write_text(json.dumps(out, indent=1) + "\n")

@@ -153,8 +153,6 @@ def _escape_rich_segments() -> bool:
     False when rich is missing or renders otherwise than this knows (its output is then
     escaped whole by the filter)."""
     global _RICH_ESCAPES
-    if _RICH_ESCAPES:
-        return True
     try:
         from rich.console import Console
         from rich.segment import Segment
@@ -163,6 +161,9 @@ def _escape_rich_segments() -> bool:
     original = getattr(Console, "_render_buffer", None)
     if original is None:
         return False
+    if getattr(original, "_repro_escapes", False):  # this Console class is patched already
+        _RICH_ESCAPES = True
+        return True
 
     def _render_buffer(self, buffer):
         return _RichOutput(original(self, (
@@ -170,32 +171,42 @@ def _escape_rich_segments() -> bool:
             for seg in buffer)))
 
     _render_buffer.__doc__ = original.__doc__
+    _render_buffer._repro_escapes = True
     Console._render_buffer = _render_buffer
     _RICH_ESCAPES = True
     return True
 
 
 class _PatchRichOnImport:
-    """A one-shot ``sys.meta_path`` finder: when ``rich.console`` is first imported, the module
-    is executed as usual and :func:`_escape_rich_segments` patches it right after, before any
-    code can render with it.  So a command that never styles anything (``repro plan``) does not
-    pay rich's import (~40 ms) for the guard (issue 31: ``repro plan`` <= 0.5 s)."""
+    """A ``sys.meta_path`` finder: when ``rich.console`` is imported, the module is executed
+    as usual and :func:`_escape_rich_segments` patches it right after, before any code can
+    render with it; then the finder leaves ``sys.meta_path``.  (A look-up that only asks for
+    the spec, ``importlib.util.find_spec``, does not use it up.)  So a command that never styles
+    anything (``repro plan``) does not pay rich's import (~40 ms) for the guard (issue 31:
+    ``repro plan`` <= 0.5 s)."""
+
+    def __init__(self):
+        self._looking = False
 
     def find_spec(self, fullname, path=None, target=None):
-        if fullname != "rich.console":
+        if fullname != "rich.console" or self._looking:
             return None
-        if self in sys.meta_path:
-            sys.meta_path.remove(self)  # one shot: the look-up below must not come back here
         import importlib.util
 
-        spec = importlib.util.find_spec(fullname)
+        self._looking = True  # the look-up below walks sys.meta_path, this finder included
+        try:
+            spec = importlib.util.find_spec(fullname)
+        finally:
+            self._looking = False
         if spec is None or spec.loader is None or not hasattr(spec.loader, "exec_module"):
             return spec
-        loader_exec = spec.loader.exec_module
+        loader_exec, finder = spec.loader.exec_module, self
 
         def exec_module(module):
             loader_exec(module)
             _escape_rich_segments()
+            if finder in sys.meta_path:
+                sys.meta_path.remove(finder)
 
         spec.loader.exec_module = exec_module  # this spec's own loader instance
         return spec
@@ -209,8 +220,6 @@ def _patch_rich_when_imported() -> None:
     """:func:`_escape_rich_segments` now if rich's console is loaded, else as soon as it is
     (:class:`_PatchRichOnImport`), once per process."""
     global _RICH_FINDER
-    if _RICH_ESCAPES:
-        return
     if "rich.console" in sys.modules:
         _escape_rich_segments()
     elif _RICH_FINDER is None or _RICH_FINDER not in sys.meta_path:

@@ -14,10 +14,18 @@ and whose thread count it fixes to one (``OPENBLAS_NUM_THREADS``): the same AVX2
 and the same blocking on every x86-64 CPU with AVX2, whatever its vendor or cache sizes, so the
 same bits (checked by the op battery, ``benchmarks/kernel_ops.py``, natively, under every
 ambient setting, and under an emulated Intel CPU; ``tests/golden/kernel_ops.json``).  Because
-the replacement sits at the dispatcher, every caller takes it: ``nn.Linear`` (``addmm``),
-``matmul`` (``mm``/``bmm``), attention, ``nn.GRU``/``nn.LSTM`` gates and every backward formula
-that multiplies matrices.  Other products (convolutions' im2col GEMM, ``mv``, ``dot``) stay on
-MKL's COMPATIBLE branch, also portable.
+the replacement sits at the dispatcher, every caller of those operators takes it:
+``nn.Linear`` (``addmm``), ``matmul`` (``mm``/``bmm``), the training path's attention,
+``nn.GRU``/``nn.LSTM`` gates and every backward formula that multiplies matrices.  What calls
+other operators stays on MKL's COMPATIBLE branch, also portable: the in-place and ``out=``
+variants (``addmm_``, ``mm(out=)``), SDPA's fused CPU kernel (attention without dropout, i.e.
+at evaluation and sampling), ``mv``, ``dot`` and convolutions' own im2col GEMM.
+
+Two differences from torch's kernels that no code here meets: a result's storage is numpy's
+(``resize_`` of it raises, as for any ``torch.from_numpy`` tensor), and a product that makes
+an Inf or NaN from finite numbers (a diverging training) may print numpy's ``RuntimeWarning:
+invalid value encountered in matmul`` once (inside a user's ``np.errstate(all="raise")`` it
+would raise FloatingPointError); silencing it per call (``np.errstate``) cost ~2 µs a call.
 
 Semantics follow torch's: same-dtype operands (float, complex and integer; half and bfloat16
 are computed in float32 and rounded once), ``addmm(self, m1, m2, beta, alpha) = beta * self +
@@ -51,7 +59,7 @@ def _array(t, dtype=None):
     if t.is_neg():
         t = t.resolve_neg()
     if t.dtype == torch.bool:
-        raise RuntimeError("\"addmm_impl_cpu_\" not implemented for 'Bool'")
+        raise NotImplementedError("\"addmm_impl_cpu_\" not implemented for 'Bool'")
     if dtype is not None:
         t = t.to(dtype)
     return _blas_ready(t.numpy())
@@ -95,11 +103,16 @@ def _fast_product(a, b, want: int):
         x, y = a.detach().numpy(), b.detach().numpy()
     except RuntimeError:  # a conjugate or negative view
         return None
-    return _TORCH.from_numpy(_np.matmul(_blas_ready(x), _blas_ready(y)))
+    return _matmul_into_torch(_blas_ready(x), _blas_ready(y))
+
+
+def _matmul_into_torch(x, y):
+    """``x @ y`` by numpy's matmul, as a tensor sharing the result's memory (numpy's
+    allocation: a torch-allocated ``out=`` cost ~6 µs more per call, a tenth of A2M's steps)."""
+    return _TORCH.from_numpy(_np.matmul(x, y))
 
 
 def _product(a, b, name: str, batched: bool):
-    import numpy as np
     import torch
 
     want = 3 if batched else 2
@@ -118,14 +131,29 @@ def _product(a, b, name: str, batched: bool):
         raise RuntimeError(f"{name}: mat1 and mat2 shapes cannot be multiplied "
                            f"({'x'.join(map(str, a.shape))} and {'x'.join(map(str, b.shape))})")
     cd = _compute_dtype(a)
-    out = np.matmul(_array(a, cd), _array(b, cd))
-    r = torch.from_numpy(np.ascontiguousarray(out))
+    x, y = _array(a, cd), _array(b, cd)
+    r = _matmul_into_torch(x, y)
     return r.to(a.dtype) if cd is not None else r
 
 
-def _accumulate(r, self_, beta, alpha):
-    """``beta * self + alpha * r`` as torch's addmm defines it (``self`` unread when beta == 0)."""
-    if alpha != 1:
+def _accumulate(r, self_, beta, alpha, name: str):
+    """``beta * self + alpha * r`` as torch's addmm defines it: ``self`` of the products'
+    dtype and broadcastable to their shape, its values unread when beta == 0, and the product
+    unread when alpha == 0 (BLAS's convention: an Inf or NaN in the matrices does not reach the
+    result then)."""
+    import torch
+
+    if self_.dtype != r.dtype:
+        raise RuntimeError(f"{name}: self and mat2 must have the same dtype, but got "
+                           f"{self_.dtype} and {r.dtype}")
+    try:
+        torch.broadcast_shapes(self_.shape, r.shape)
+    except RuntimeError:
+        raise RuntimeError(f"{name}: the shape of self {tuple(self_.shape)} does not broadcast "
+                           f"to the product's {tuple(r.shape)}") from None
+    if alpha == 0:
+        r = r.zero_()
+    elif alpha != 1:
         r = r.mul_(alpha)
     if beta == 0:
         return r
@@ -144,12 +172,13 @@ def bmm(self, mat2):
 
 def addmm(self, mat1, mat2, *, beta=1, alpha=1):
     """``aten::addmm`` on the CPU: ``beta * self + alpha * (mat1 @ mat2)``."""
-    return _accumulate(_product(mat1, mat2, "addmm", False), self, beta, alpha)
+    return _accumulate(_product(mat1, mat2, "addmm", False), self, beta, alpha, "addmm")
 
 
 def baddbmm(self, batch1, batch2, *, beta=1, alpha=1):
     """``aten::baddbmm`` on the CPU: ``beta * self + alpha * (batch1 @ batch2)``."""
-    return _accumulate(_product(batch1, batch2, "baddbmm", True), self, beta, alpha)
+    return _accumulate(_product(batch1, batch2, "baddbmm", True), self, beta, alpha,
+                       "baddbmm")
 
 
 _np = _TORCH = None  # numpy and torch, bound by install()

@@ -79,3 +79,21 @@ def test_attention_with_weight_dropout_off_equals_sdpa():
     causal_ref = (att.eval(), att(q, q, causal=True))[1]
     att.train()
     assert torch.allclose(att(q, q, causal=True), causal_ref, atol=1e-6)
+
+
+def test_attention_with_every_key_padded_attends_to_nothing_with_finite_gradients():
+    """An item whose keys are all padded (and queries past a short key sequence under the
+    causal mask) get zero attention in training as in evaluation (SDPA's safe softmax), and
+    the gradients stay finite (a NaN there would poison every weight at the next step)."""
+    torch.manual_seed(0)
+    att = layers.MultiHeadAttention(16, 4, dropout=0.1)
+    q, kv = torch.randn(3, 6, 16, requires_grad=True), torch.randn(3, 9, 16)
+    pad = torch.zeros(3, 9, dtype=torch.bool)
+    pad[1, :] = True
+    out = att(q, kv, key_padding_mask=pad)
+    out.sum().backward()
+    assert torch.isfinite(out).all() and torch.isfinite(q.grad).all()
+    assert all(torch.isfinite(p.grad).all() for p in att.parameters() if p.grad is not None)
+    att.eval()
+    ref = att(q, kv, key_padding_mask=pad)
+    assert torch.allclose(out[1], ref[1], atol=1e-6)  # the padded item: the output bias alone

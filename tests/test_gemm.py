@@ -124,3 +124,15 @@ def test_every_layout_reaches_blas():
     e = np.broadcast_to(np.ones(5, dtype=np.float32), (3, 5))
     assert gemm._blas_ready(e).flags.c_contiguous
 
+
+
+def test_addmm_edge_cases_follow_torch():
+    """alpha = 0 leaves the product unread (BLAS's convention), and ``self`` must have the
+    products' dtype and broadcast to their shape even when beta = 0."""
+    nan = torch.full((1, 2), math.nan)
+    assert torch.equal(torch.addmm(torch.ones(1, 2), nan, torch.ones(2, 2), alpha=0),
+                       torch.ones(1, 2))
+    with pytest.raises(RuntimeError, match="same dtype"):
+        torch.addmm(torch.ones(2, dtype=torch.float64), torch.ones(3, 4), torch.ones(4, 2))
+    with pytest.raises(RuntimeError, match="broadcast"):
+        torch.addmm(torch.ones(5), torch.ones(3, 4), torch.ones(4, 2), beta=0)

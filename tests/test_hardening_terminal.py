@@ -163,12 +163,15 @@ def test_styling_passes_through_rich_s_own_stream_redirection(monkeypatch):
 def test_rich_imported_after_the_guard_is_patched_before_it_renders():
     """The guard does not import rich (``repro plan`` prints without it: issue 31's 0.5 s); a
     rich imported later, inside the guard, is patched as it loads: its styling passes, the
-    data inside is escaped.  In a fresh process, so rich is not loaded beforehand."""
+    data inside is escaped (also after a look-up that only asked for rich's spec).  In a fresh
+    process, so rich is not loaded beforehand."""
     code = ("import io, sys\n"
             "import cli.main as m\n"
             "raw = io.StringIO(); raw.isatty = lambda: True; sys.stdout = raw\n"
             "with m.terminal_guard():\n"
             "    assert 'rich.console' not in sys.modules, 'the guard imported rich'\n"
+            "    import importlib.util\n"
+            "    assert importlib.util.find_spec('rich.console') is not None\n"  # a probe
             "    from rich.console import Console\n"
             "    from rich.text import Text\n"
             "    Console(force_terminal=True, color_system='standard').print(\n"

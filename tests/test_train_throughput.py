@@ -217,3 +217,24 @@ def test_issue31_before_paths_swap_the_old_kernels_and_layers_and_restore_them(b
     assert gemm.installed()
     assert (kernels.check, layers.Dropout.forward, layers.Conv1d.forward,
             layers.MultiHeadAttention.attend) == saved
+
+
+def test_curves_statement_reads_the_seed_spread():
+    """benchmarks/train_curves.py's equivalence statement: a difference of means within the
+    pooled seed standard deviation is "within", a shift past it is not, per epoch; the table
+    stops at the shorter run's epochs."""
+    spec = importlib.util.spec_from_file_location("train_curves", BENCH / "train_curves.py")
+    mod = importlib.util.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(mod)
+    finally:
+        for p in (str(BENCH), str(BENCH.parent)):
+            while p in sys.path:
+                sys.path.remove(p)
+    before = [[1.0, 0.50], [1.2, 0.52], [1.1, 0.48]]        # epoch sds 0.1 and 0.02
+    after = [[1.05, 0.60, 0.3], [1.15, 0.62, 0.3], [1.1, 0.58, 0.3]]
+    rows = mod.summarise(before, after)
+    assert [r["epoch"] for r in rows] == [0, 1]
+    assert rows[0]["within"] and rows[0]["diff"] == pytest.approx(0.0)
+    assert not rows[1]["within"] and rows[1]["diff"] == pytest.approx(0.10)
+    assert rows[1]["pooled_sd"] == pytest.approx(0.02)

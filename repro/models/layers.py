@@ -164,9 +164,18 @@ class MultiHeadAttention(nn.Module):
             # attention-weight dropout with :func:`dropout`'s mask: the weights written out
             # (SDPA's own math path does the same, with bernoulli_ draws)
             s = torch.matmul(q * (1.0 / math.sqrt(q.shape[-1])), k.transpose(-2, -1))
-            w = torch.softmax(s if mask is None else s.add_(mask), dim=-1)
-            if key_padding_mask is not None and bool(key_padding_mask.all(-1).any()):
-                w = w.nan_to_num(0.0)  # an item with every key padded attends to nothing
+            dead = None
+            if mask is not None:
+                s = s.add_(mask)
+                # a query whose every key is masked (an item with no valid key) attends to
+                # nothing, as SDPA's safe softmax has it: zero weights, finite gradients
+                dead = torch.isneginf(mask).all(-1, keepdim=True)
+                dead = dead if bool(dead.any()) else None
+                if dead is not None:
+                    s = s.masked_fill(dead, 0.0)
+            w = torch.softmax(s, dim=-1)
+            if dead is not None:
+                w = w.masked_fill(dead, 0.0)
             o = torch.matmul(dropout(w, self.dropout), v)
         else:
             o = F.scaled_dot_product_attention(q, k, v, attn_mask=mask)

@@ -1,0 +1,136 @@
+"""Learning curves before and after issue 31's number-changing speed-ups (issue 31, "a statement
+of equivalence"): each method trained at ``medium`` on its own ``train`` job's items, from
+training seeds 0, 1, 2 (``--seeds``), through the training paths of commit
+``bench_train_throughput.BEFORE`` (swapped in as that benchmark does) and through today's,
+recording the validation loss of every epoch on the job's held-out share of the training clips
+(``validation_fraction``; never test clips).
+
+The statement per method: at every epoch, the difference of the two paths' mean validation
+losses against the seed-to-seed spread (the pooled standard deviation of the seeds, both paths);
+"within the spread" when the difference is at most that standard deviation at every epoch.
+Printed as a table, written with every raw value by ``--json FILE``.
+
+    .venv/bin/python benchmarks/train_curves.py --methods marionet --json out.json [--seeds 0,1,2]
+
+A full ``medium`` training per seed and path: minutes to tens of minutes per method on a 2-core
+machine (MarioNet ~3 minutes after, ~6 before, per seed).  Needs the git history holding the
+"before" commit (exit 2 without it) and the profile's data set prepared.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import math
+import statistics
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import repro  # noqa: F401,E402  (pins the kernel paths before torch / numpy load)
+import torch  # noqa: E402
+from bench_train_throughput import (BEFORE, METHOD_SPECS, head_commit, before_available,  # noqa: E402
+                                    before_paths, train_job_configs)
+
+#: the history key each method's curve is read from (the validation loss of its own objective)
+CURVE = "val_loss"
+
+
+def curve(method: str, cfg: dict, clips, train_items, val_items, seed: int, path: str):
+    """(validation losses per epoch, seconds) of one full training of ``method``."""
+    from repro.models.base import generator_class
+
+    cls = generator_class(method)
+    gen = cls(cfg["method_config"], clips.skeleton, clips.n_classes, train_items.fps)
+    ctx = before_paths() if path == "before" else contextlib.nullcontext()
+    t0 = time.perf_counter()
+    with ctx:
+        res = gen.fit(train_items, seed=seed, val_items=val_items)
+    return [float(h[CURVE]) for h in res.history if CURVE in h], time.perf_counter() - t0
+
+
+def summarise(before: list[list[float]], after: list[list[float]]) -> list[dict]:
+    """Per epoch: the two paths' means and standard deviations over seeds, the difference,
+    the pooled seed standard deviation and whether the difference is within it."""
+    rows = []
+    for e in range(min(min(map(len, before)), min(map(len, after)))):
+        b, a = [c[e] for c in before], [c[e] for c in after]
+        sb, sa = statistics.stdev(b), statistics.stdev(a)
+        pooled = math.sqrt((sb * sb + sa * sa) / 2)
+        diff = statistics.fmean(a) - statistics.fmean(b)
+        rows.append({"epoch": e, "before_mean": statistics.fmean(b), "before_sd": sb,
+                     "after_mean": statistics.fmean(a), "after_sd": sa, "diff": diff,
+                     "pooled_sd": pooled, "within": abs(diff) <= pooled})
+    return rows
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--methods", required=True, help="comma-separated trained methods")
+    ap.add_argument("--seeds", default="0,1,2", help="training seeds (at least two)")
+    ap.add_argument("--scale", default="medium")
+    ap.add_argument("--json", default=None, metavar="FILE")
+    a = ap.parse_args(argv)
+    methods = [m.strip() for m in a.methods.split(",") if m.strip()]
+    seeds = [int(s) for s in a.seeds.split(",") if s.strip()]
+    if any(m not in METHOD_SPECS for m in methods) or len(seeds) < 2:
+        print(f"curves: --methods from {', '.join(METHOD_SPECS)}; --seeds at least two",
+              file=sys.stderr)
+        return 2
+    from repro.engine import steps as job_steps
+    from repro.errors import ReproError
+    from repro.models.base import generator_class
+    from repro.specs.scales import resolve_scale
+    from repro.train.validation import holdout
+
+    if not before_available("curves"):
+        return 2
+    try:
+        scale = resolve_scale(a.scale)
+        configs = train_job_configs(methods, scale, None)
+        clips = job_steps.clipset(next(iter(configs.values()))["dataset"])
+    except ReproError as e:
+        print(f"curves: {e}", file=sys.stderr)
+        return 2
+    torch.set_num_threads(int(getattr(scale, "threads", 1) or 1))
+    out = {"schema": 1, "benchmark": "train_curves", "before": BEFORE, "after": head_commit(),
+           "scale": a.scale, "curve": CURVE, "seeds": seeds, "methods": {}}
+    for m in methods:
+        cfg = configs[m]
+        items = job_steps.training_items(cfg, clips, getattr(generator_class(m), "item_kind",
+                                                             "actions"))
+        fraction, val_seed = job_steps.validation_settings(cfg, 0)
+        train_items, val_items = holdout(items, fraction, val_seed)
+        raw = {"before": [], "after": []}
+        secs = {"before": [], "after": []}
+        for s in seeds:
+            for path in ("before", "after"):
+                c, t = curve(m, cfg, clips, train_items, val_items, s, path)
+                raw[path].append(c)
+                secs[path].append(t)
+                print(f"{m} seed {s} {path}: {len(c)} epochs, {t:.0f} s, last {c[-1]:.5g}",
+                      flush=True)
+        rows = summarise(raw["before"], raw["after"])
+        ok = all(r["within"] for r in rows)
+        out["methods"][m] = {"raw": raw, "seconds": secs, "epochs": rows, "equivalent": ok}
+        print(f"\n{m}: {CURVE} per epoch over seeds {seeds} (mean ± sd)")
+        print("| epoch | before | after | after − before | seed sd (pooled) | within |")
+        print("| ---: | ---: | ---: | ---: | ---: | --- |")
+        for r in rows:
+            print(f"| {r['epoch']} | {r['before_mean']:.4f} ± {r['before_sd']:.4f} | "
+                  f"{r['after_mean']:.4f} ± {r['after_sd']:.4f} | {r['diff']:+.4f} | "
+                  f"{r['pooled_sd']:.4f} | {'yes' if r['within'] else 'no'} |")
+        print(f"{m}: {'within the seed spread at every epoch' if ok else 'NOT within'}; "
+              f"training time before {statistics.fmean(secs['before']):.0f} s, after "
+              f"{statistics.fmean(secs['after']):.0f} s per seed\n", flush=True)
+        if a.json:
+            Path(a.json).write_text(json.dumps(out, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
