@@ -177,15 +177,19 @@ def _torch_dropout(self, x):
 def before_paths(commit: str = BEFORE):
     """Within the block every training runs the paths issue 31 changed as they were at
     ``commit`` (module docstring): torch's matrix products, ``nn.Dropout``'s masks,
-    ``nn.Conv1d``'s kernel and the old attention (``MultiHeadAttention.attend`` from git
-    history); on exit the library's are back (``repro.gemm`` installed again).
-    BeforeUnavailable without that history."""
+    ``nn.Conv1d``'s kernel, the old attention (``MultiHeadAttention.attend`` from git
+    history) and Action2Motion's frame-by-frame step (``A2M.training_step``, from git history);
+    on exit the library's are back (``repro.gemm`` installed again).  BeforeUnavailable
+    without that history."""
     from repro import gemm, kernels
     from repro.models import layers
+    from repro.models.a2m import A2M
 
     old_layers = import_before(commit, "repro/models/layers.py")
+    old_a2m = import_before(commit, "repro/models/a2m.py")
     try:
         with swapped((kernels, "check", _check_as_before),
+                     (A2M, "training_step", vars(old_a2m.A2M)["training_step"]),
                      (layers.Dropout, "forward", _torch_dropout),
                      (layers.Conv1d, "forward", torch.nn.Conv1d.forward),
                      (layers.MultiHeadAttention, "attend",

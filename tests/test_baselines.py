@@ -314,3 +314,52 @@ def test_quick_scale_on_bandai2_mini(method):
     assert result.history[-1]["loss"] < result.history[0]["loss"]
     out = m.sample(test, seed=0)
     assert torch.isfinite(out.joints()).all()
+
+
+def _a2m_step_frame_by_frame(m, net, batch):
+    """A2M's loss as Guo et al. Eq. 5 reads, every network run one frame at a time (the
+    library's step before issue 31): the reference for its sequence-level step."""
+    cfg = m.config
+    x, lengths = batch["params"], batch["lengths"]
+    B, T = x.shape[:2]
+    mask = (torch.arange(T)[None] < lengths[:, None]).to(x.dtype)
+    onehot = torch.nn.functional.one_hot(batch["labels"], m.n_classes).to(x.dtype)
+    h_post, h_prior, h_dec = (n.init_hidden(B, x) for n in (net.posterior, net.prior,
+                                                            net.decoder))
+    self_feed = bool(torch.rand(()) < cfg.self_feed_ratio)
+    prev, preds, kls = batch["start"], [], []
+    for t in range(T):
+        c = net.condition(onehot, t, lengths)
+        mu, logvar, h_post = net.posterior(torch.cat([x[:, t], c], -1), h_post)
+        mu_p, logvar_p, h_prior = net.prior(torch.cat([prev, c], -1), h_prior)
+        z = mu + torch.exp(0.5 * logvar) * torch.randn_like(mu)
+        x_hat, h_dec = net.decoder(torch.cat([prev, c, z], -1), h_dec)
+        preds.append(x_hat)
+        kls.append(kl_gaussians(mu, logvar, mu_p, logvar_p))
+        prev = x_hat if self_feed else x[:, t]
+    joints = pose_joints(m.skeleton, m.to_poses(torch.stack(preds, 1)))
+    rec = ((((joints - batch["joints"]) ** 2).mean((-1, -2))) * mask).sum(1).mean()
+    return rec + cfg.lambda_kld * (torch.stack(kls, 1) * mask).sum(1).mean()
+
+
+@pytest.mark.parametrize("self_feed", [0.0, 1.0], ids=["teacher-forced", "self-fed"])
+def test_a2m_sequence_step_equals_frame_by_frame(clips, items, self_feed):
+    """The posterior over the whole sequence (and, teacher-forced, the prior and decoder too):
+    the same loss and gradients as running every network frame by frame, up to the order in
+    which the frames' gradient terms are summed; the same noise (drawn frame-major)."""
+    m = model("a2m", clips, self_feed_ratio=self_feed, hidden=32, dim_z=8)
+    net = m.network.train()
+    batch = m._crop(m._tensors(items), torch.arange(8))       # 8 * 8 latent numbers: x16
+    assert int(batch["lengths"].min()) < int(batch["lengths"].max())     # padded frames too
+    grads = []
+    for step in (lambda: m.training_step(net, batch, 0)["loss"],
+                 lambda: _a2m_step_frame_by_frame(m, net, batch)):
+        torch.manual_seed(7)
+        net.zero_grad()
+        loss = step()
+        loss.backward()
+        grads.append((loss.detach(), [p.grad.clone() for p in net.parameters()]))
+    (loss_seq, g_seq), (loss_ref, g_ref) = grads
+    torch.testing.assert_close(loss_seq, loss_ref, rtol=1e-6, atol=0)
+    for a, b in zip(g_seq, g_ref):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-6)

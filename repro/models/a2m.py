@@ -35,7 +35,11 @@ the target's bones), the KL summed over latent dimensions; ``L = Σ_t L_t`` over
 frames, averaged over the batch.  ``z_t`` comes from the posterior (reparameterised).  With
 probability ``self_feed_ratio`` (0.6; the authors' ``--tf_ratio``, whose flag feeds the
 prediction back) a batch feeds the decoder's own prediction ``x̂_{t}`` (with gradient) as the
-next ``x_t``; otherwise the data.  Adam, lr 2e-4, weight decay 1e-5, batch 128.
+next ``x_t``; otherwise the data.  Adam, lr 2e-4, weight decay 1e-5, batch 128.  Computed
+(issue 31) with the posterior, whose inputs are all data, over the whole sequence at once
+(``torch.gru`` over its own cells' weights); a teacher-forced batch runs the prior and the
+decoder the same way, a self-fed one frame by frame.  Per frame the same values as running
+every network frame by frame; the weights' gradients sum the frames' terms in another order.
 
 Sampling: ``z_t ~ p(z_t | x_{<t}, a)`` (``μ^p_t`` when ``use_mean``), ``x̂_t`` fed back; noise
 drawn per item from the seed.  :meth:`A2M.sample` returns rotations (a GeneratedItems);
@@ -117,6 +121,19 @@ class StackedGRU(nn.Module):
             new.append(h)
         return h, new
 
+    def trunk_sequence(self, x, hidden):
+        """:meth:`trunk` over a whole sequence of known inputs ``x`` (B, T, n_in) at once: the
+        embedding of every frame in one product, then the same stacked GRU cells (the cells'
+        own weights, in ``torch.gru``'s layer order) as one fused recurrence, each layer's
+        input gates of all frames in one product.  Per frame the same values as :meth:`trunk`
+        run frame by frame; the weights' gradients are summed over the frames inside one
+        product instead of frame by frame (issue 31; tests/test_a2m.py).  (last cell's outputs
+        (B, T, H), every cell's final hidden state)."""
+        weights = [w for c in self.cells for w in (c.weight_ih, c.weight_hh, c.bias_ih, c.bias_hh)]
+        out, last = torch.gru(self.embed(x), torch.stack(hidden), weights, True, len(self.cells),
+                              0.0, self.training, False, True)
+        return out, list(last.unbind(0))
+
 
 class GaussianGRU(StackedGRU):
     """FC embedding → stacked GRU cells → (μ, log σ²) heads (A2M's prior/posterior networks)."""
@@ -126,8 +143,10 @@ class GaussianGRU(StackedGRU):
         self.mu = nn.Linear(hidden, n_out)
         self.logvar = nn.Linear(hidden, n_out)
 
-    def forward(self, x, hidden):
-        h, new = self.trunk(x, hidden)
+    def forward(self, x, hidden, sequence: bool = False):
+        """(μ, log σ², new hidden states) of one frame ``x`` (B, n_in), or of every frame of a
+        known sequence (B, T, n_in) with ``sequence`` (:meth:`trunk_sequence`)."""
+        h, new = (self.trunk_sequence if sequence else self.trunk)(x, hidden)
         return self.mu(h), self.logvar(h), new
 
 
@@ -142,8 +161,10 @@ class DecoderGRU(StackedGRU):
         if lie:
             self.out_lie = nn.Linear(n_out - 3, n_out - 3)
 
-    def forward(self, x, hidden):
-        h, new = self.trunk(x, hidden)
+    def forward(self, x, hidden, sequence: bool = False):
+        """(pose parameters, new hidden states) of one frame, or of a known sequence with
+        ``sequence`` (as :meth:`GaussianGRU.forward`)."""
+        h, new = (self.trunk_sequence if sequence else self.trunk)(x, hidden)
         y = self.out(h)
         if self.lie:
             rot = math.pi * torch.tanh(self.out_lie(torch.tanh(y[..., :-3])))
@@ -270,20 +291,28 @@ class A2M(Generator):
         h_prior = net.prior.init_hidden(B, x)
         h_dec = net.decoder.init_hidden(B, x)
         self_feed = bool(torch.rand(()) < cfg.self_feed_ratio)
-        prev = batch["start"]
-        preds, kls = [], []
         conds = net.conditions(onehot, T, lengths)
-        for t in range(T):
-            c = conds[:, t]
-            mu, logvar, h_post = net.posterior(torch.cat([x[:, t], c], -1), h_post)
-            mu_p, logvar_p, h_prior = net.prior(torch.cat([prev, c], -1), h_prior)
-            z = mu + torch.exp(0.5 * logvar) * torch.randn_like(mu)
-            x_hat, h_dec = net.decoder(torch.cat([prev, c, z], -1), h_dec)
-            preds.append(x_hat)
-            kls.append(kl_gaussians(mu, logvar, mu_p, logvar_p))
-            prev = x_hat if self_feed else x[:, t]
-        pred = torch.stack(preds, 1)                                   # (B, T, n_params)
-        kl = (torch.stack(kls, 1) * mask).sum(1).mean()
+        # the posterior reads only the data: all frames at once (issue 31); its noise drawn
+        # frame-major, the order of one draw per frame
+        mu, logvar, _ = net.posterior(torch.cat([x, conds], -1), h_post, sequence=True)
+        z = mu + torch.exp(0.5 * logvar) * torch.randn(
+            T, B, cfg.dim_z, dtype=mu.dtype, device=mu.device).transpose(0, 1)
+        if self_feed:   # each frame's input is the previous prediction: frame by frame
+            prev = batch["start"]
+            preds, mus_p, logvars_p = [], [], []
+            for c, z_t in zip(conds.unbind(1), z.unbind(1)):
+                mu_p, logvar_p, h_prior = net.prior(torch.cat([prev, c], -1), h_prior)
+                prev, h_dec = net.decoder(torch.cat([prev, c, z_t], -1), h_dec)
+                preds.append(prev)
+                mus_p.append(mu_p)
+                logvars_p.append(logvar_p)
+            pred = torch.stack(preds, 1)                               # (B, T, n_params)
+            mu_p, logvar_p = torch.stack(mus_p, 1), torch.stack(logvars_p, 1)
+        else:           # teacher forcing: every input known, the two networks over the sequence
+            prevs = torch.cat([batch["start"][:, None], x[:, :-1]], 1)
+            mu_p, logvar_p, _ = net.prior(torch.cat([prevs, conds], -1), h_prior, sequence=True)
+            pred, _ = net.decoder(torch.cat([prevs, conds, z], -1), h_dec, sequence=True)
+        kl = (kl_gaussians(mu, logvar, mu_p, logvar_p) * mask).sum(1).mean()
         if cfg.representation == "xyz":                                # positions: no FK
             joints = pred.reshape(B, T, self.skeleton.n_joints, 3)
         else:

@@ -193,8 +193,9 @@ class MotionGenerator(nn.Module):
             fixed = F.linear(cond, w[:, P:], self.dec_embed.bias)[:, None].expand(N, T, -1)
         prev = traj.new_zeros(N, P)
         outs = []
+        fixed_steps = fixed.unbind(1)  # one view per step; backward stacks their gradients once
         for t in range(T):
-            x = self.act(F.linear(prev, w_prev) + fixed[:, t])
+            x = self.act(F.linear(prev, w_prev) + fixed_steps[t])
             h, state = self.dec_lstm(x[:, None], state)
             pose = self.out(h[:, 0])
             outs.append(pose)

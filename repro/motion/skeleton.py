@@ -151,14 +151,16 @@ def forward_kinematics(skeleton: Skeleton, rotations, root_translation, offsets=
     off = off.expand(R.shape[:-1])
     glob_R: list = [None] * J
     glob_p: list = [None] * J
+    local = R.unbind(-3)  # one view per joint; backward stacks their gradients once
+    offs = off.unbind(-2)
     for j, p in enumerate(skeleton.parents):
-        Rj = R[..., j, :, :]
+        Rj = local[j]
         if p < 0:
             glob_R[j] = Rj
             glob_p[j] = t
         else:
             glob_R[j] = glob_R[p] @ Rj
-            glob_p[j] = glob_p[p] + (glob_R[p] @ off[..., j, :].unsqueeze(-1)).squeeze(-1)
+            glob_p[j] = glob_p[p] + (glob_R[p] @ offs[j].unsqueeze(-1)).squeeze(-1)
     pos = torch.stack(glob_p, dim=-2)
     return pos.numpy() if as_numpy else pos
 
