@@ -14,11 +14,14 @@ alike), ``--repeats`` times each:
   by :func:`before_paths`: torch's own matrix-product kernels (MKL's COMPATIBLE branch) instead
   of :mod:`repro.gemm`'s, ``nn.Dropout``'s ``bernoulli_`` masks instead of
   :func:`repro.models.layers.dropout`'s, ``nn.Conv1d``'s own kernel (im2col on MKL) instead of
-  :class:`repro.models.layers.Conv1d`'s unfolded product, and the attention of that commit
+  :class:`repro.models.layers.Conv1d`'s unfolded product, the attention of that commit
   (SDPA with its own weight dropout; ``MultiHeadAttention.attend`` imported from git history
-  by ``benchmarks/_before.py``).  Everything else is identical at the two commits, but for
-  one setting of the process: numpy's OpenBLAS runs one thread under pin v2 in both paths
-  (at a681c37 it ran as many as the machine has; no method's step calls numpy's BLAS);
+  by ``benchmarks/_before.py``) and Action2Motion's frame-by-frame step (``A2M.training_step``,
+  from git history).  Everything else is today's code in both paths: forward kinematics' and
+  ODMO's decoder's per-joint / per-step views (bitwise the same numbers as at that commit, a
+  little faster, so the ratios slightly understate the change) and one setting of the
+  process: numpy's OpenBLAS runs one thread under pin v2 in both paths (at a681c37 it ran as
+  many as the machine has; no method's step called numpy's BLAS then);
 - ``after``: the library as it is.
 
 Printed per method: the batch unit (items; MANN: frame pairs; ODMO: window pairs; DLow-Gen:

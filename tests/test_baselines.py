@@ -346,7 +346,8 @@ def _a2m_step_frame_by_frame(m, net, batch):
 def test_a2m_sequence_step_equals_frame_by_frame(clips, items, self_feed):
     """The posterior over the whole sequence (and, teacher-forced, the prior and decoder too):
     the same loss and gradients as running every network frame by frame, up to the order in
-    which the frames' gradient terms are summed; the same noise (drawn frame-major)."""
+    which the frames' gradient terms are summed; the same noise (drawn frame-major: equal to one
+    draw per frame because B·dim_z = 64 is a multiple of torch's normal block of 16)."""
     m = model("a2m", clips, self_feed_ratio=self_feed, hidden=32, dim_z=8)
     net = m.network.train()
     batch = m._crop(m._tensors(items), torch.arange(8))       # 8 * 8 latent numbers: x16

@@ -39,7 +39,12 @@ next ``x_t``; otherwise the data.  Adam, lr 2e-4, weight decay 1e-5, batch 128. 
 (issue 31) with the posterior, whose inputs are all data, over the whole sequence at once
 (``torch.gru`` over its own cells' weights); a teacher-forced batch runs the prior and the
 decoder the same way, a self-fed one frame by frame.  Per frame the same values as running
-every network frame by frame; the weights' gradients sum the frames' terms in another order.
+every network frame by frame up to rounding (all frames' input gates in one product); the
+weights' gradients sum the frames' terms in another order.  The posterior's noise is one draw
+of (T, B, ``dim_z``), frame-major: the same numbers as one draw per frame when ``B·dim_z`` is a
+multiple of 16 (torch's CPU normal fills blocks of 16), other N(0, 1) numbers otherwise (a
+short last batch).  On CUDA ``torch.gru`` packs the cells' separate weights per call (cuDNN
+wants one buffer): correct, a little slower than one packed module would be.
 
 Sampling: ``z_t ~ p(z_t | x_{<t}, a)`` (``μ^p_t`` when ``use_mean``), ``x̂_t`` fed back; noise
 drawn per item from the seed.  :meth:`A2M.sample` returns rotations (a GeneratedItems);
@@ -125,9 +130,9 @@ class StackedGRU(nn.Module):
         """:meth:`trunk` over a whole sequence of known inputs ``x`` (B, T, n_in) at once: the
         embedding of every frame in one product, then the same stacked GRU cells (the cells'
         own weights, in ``torch.gru``'s layer order) as one fused recurrence, each layer's
-        input gates of all frames in one product.  Per frame the same values as :meth:`trunk`
+        input gates of all frames in one product.  Per frame :meth:`trunk`'s values up to rounding
         run frame by frame; the weights' gradients are summed over the frames inside one
-        product instead of frame by frame (issue 31; tests/test_a2m.py).  (last cell's outputs
+        product instead of frame by frame (issue 31; tests/test_baselines.py).  (last cell's outputs
         (B, T, H), every cell's final hidden state)."""
         weights = [w for c in self.cells for w in (c.weight_ih, c.weight_hh, c.bias_ih, c.bias_hh)]
         out, last = torch.gru(self.embed(x), torch.stack(hidden), weights, True, len(self.cells),
@@ -293,7 +298,7 @@ class A2M(Generator):
         self_feed = bool(torch.rand(()) < cfg.self_feed_ratio)
         conds = net.conditions(onehot, T, lengths)
         # the posterior reads only the data: all frames at once (issue 31); its noise drawn
-        # frame-major, the order of one draw per frame
+        # frame-major (one draw per frame gave the same numbers when B·dim_z % 16 == 0)
         mu, logvar, _ = net.posterior(torch.cat([x, conds], -1), h_post, sequence=True)
         z = mu + torch.exp(0.5 * logvar) * torch.randn(
             T, B, cfg.dim_z, dtype=mu.dtype, device=mu.device).transpose(0, 1)
