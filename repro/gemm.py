@@ -146,8 +146,10 @@ def _accumulate(r, self_, beta, alpha, name: str):
     if self_.dtype != r.dtype:
         raise RuntimeError(f"{name}: self and mat2 must have the same dtype, but got "
                            f"{self_.dtype} and {r.dtype}")
-    try:
-        torch.broadcast_shapes(self_.shape, r.shape)
+    shape = self_.shape
+    try:  # a bias row or a same-shape matrix (most calls) needs no general broadcast check
+        if not (shape == r.shape or (len(shape) == 1 and shape[0] == r.shape[-1])):
+            torch.broadcast_shapes(shape, r.shape)
     except RuntimeError:
         raise RuntimeError(f"{name}: the shape of self {tuple(self_.shape)} does not broadcast "
                            f"to the product's {tuple(r.shape)}") from None

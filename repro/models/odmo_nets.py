@@ -46,6 +46,7 @@ live here too; how :mod:`repro.models.odmo` combines them is documented there.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
@@ -194,9 +195,16 @@ class MotionGenerator(nn.Module):
         prev = traj.new_zeros(N, P)
         outs = []
         fixed_steps = fixed.unbind(1)  # one view per step; backward stacks their gradients once
+        # the decoder LSTM one step at a time: torch.lstm is what nn.LSTM.forward calls on the
+        # CPU, without the module's per-call argument checks (bitwise the same; issue 31)
+        lstm = self.dec_lstm
+        weights = [w for layer in lstm.all_weights for w in layer]
+        step = functools.partial(torch.lstm, params=weights, has_biases=lstm.bias,
+                                 num_layers=lstm.num_layers, dropout=float(lstm.dropout),
+                                 train=self.training, bidirectional=False, batch_first=True)
         for t in range(T):
             x = self.act(F.linear(prev, w_prev) + fixed_steps[t])
-            h, state = self.dec_lstm(x[:, None], state)
+            h, *state = step(x[:, None], state)
             pose = self.out(h[:, 0])
             outs.append(pose)
             prev = target[:, t] if use_real is not None and use_real[t] else pose
