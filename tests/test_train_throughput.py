@@ -22,11 +22,9 @@ from repro.train.loop import _float_sum, train
 BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
 
 
-@pytest.fixture(scope="module")
-def bench():
-    """benchmarks/bench_train_throughput.py (its path entries removed again once imported)."""
-    spec = importlib.util.spec_from_file_location("bench_train_throughput",
-                                                  BENCH / "bench_train_throughput.py")
+def _load_benchmark(name: str):
+    """benchmarks/NAME.py as a module (the path entries it adds removed again once imported)."""
+    spec = importlib.util.spec_from_file_location(name, BENCH / f"{name}.py")
     mod = importlib.util.module_from_spec(spec)
     try:
         spec.loader.exec_module(mod)
@@ -35,6 +33,12 @@ def bench():
             while p in sys.path:
                 sys.path.remove(p)
     return mod
+
+
+@pytest.fixture(scope="module")
+def bench():
+    """benchmarks/bench_train_throughput.py."""
+    return _load_benchmark("bench_train_throughput")
 
 
 @pytest.fixture(scope="module")
@@ -231,14 +235,7 @@ def test_curves_statement_reads_the_seed_spread():
     """benchmarks/train_curves.py's equivalence statement: a difference of means within the
     pooled seed standard deviation is "within", a shift past it is not, per epoch; the table
     stops at the shorter run's epochs."""
-    spec = importlib.util.spec_from_file_location("train_curves", BENCH / "train_curves.py")
-    mod = importlib.util.module_from_spec(spec)
-    try:
-        spec.loader.exec_module(mod)
-    finally:
-        for p in (str(BENCH), str(BENCH.parent)):
-            while p in sys.path:
-                sys.path.remove(p)
+    mod = _load_benchmark("train_curves")
     before = [[1.0, 0.50], [1.2, 0.52], [1.1, 0.48]]        # epoch sds 0.1 and 0.02
     after = [[1.05, 0.60, 0.3], [1.15, 0.62, 0.3], [1.1, 0.58, 0.3]]
     rows = mod.summarise(before, after)
