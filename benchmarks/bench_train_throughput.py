@@ -16,8 +16,9 @@ alike), ``--repeats`` times each:
   :func:`repro.models.layers.dropout`'s, ``nn.Conv1d``'s own kernel (im2col on MKL) instead of
   :class:`repro.models.layers.Conv1d`'s unfolded product, the attention of that commit
   (SDPA with its own weight dropout; ``MultiHeadAttention.attend`` imported from git history
-  by ``benchmarks/_before.py``) and Action2Motion's frame-by-frame step (``A2M.training_step``,
-  from git history).  Everything else is today's code in both paths: forward kinematics' and
+  by ``benchmarks/_before.py``), Action2Motion's frame-by-frame step (``A2M.training_step``,
+  from git history) and MarioNet's padded frames (``packed_frames = False``,
+  :data:`BEFORE_CONFIG`).  Everything else is today's code in both paths: forward kinematics' and
   ODMO's decoder's per-joint / per-step views (bitwise the same numbers as at that commit, a
   little faster, so the ratios slightly understate the change) and one setting of the
   process: numpy's OpenBLAS runs one thread under pin v2 in both paths (at a681c37 it ran as
@@ -47,6 +48,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import itertools
 import sys
 import time
@@ -73,6 +75,9 @@ METHOD_SPECS = {
 #: the issue's goals: after / before samples per second
 GOALS = {"marionet": 2.0, "macvae": 2.0}
 DEFAULT_GOAL = 1.5
+#: config switches that turn a method's issue-31 path off in the "before" path (its config
+#: field; the library's default is the new path)
+BEFORE_CONFIG = {"marionet": {"packed_frames": False}}
 #: what one batch row is, where it is not a training item
 UNITS = {"mann": "frame pairs", "odmo": "window pairs", "dlow_gen": "windows",
          "act_mocogan": "windows"}
@@ -176,6 +181,17 @@ def _torch_dropout(self, x):
     return torch.nn.functional.dropout(x, self.p, self.training)
 
 
+def _unpacked(attend):
+    """An ``attend`` of before issue 31 as today's layers call it (``packing=None``: the before
+    path never packs, :data:`BEFORE_CONFIG`)."""
+    @functools.wraps(attend)
+    def call(self, q_in, k, v, *, packing=None, **kw):
+        if packing is not None:
+            raise RuntimeError("the before path's attention takes no packed tokens")
+        return attend(self, q_in, k, v, **kw)
+    return call
+
+
 @contextlib.contextmanager
 def before_paths(commit: str = BEFORE):
     """Within the block every training runs the paths issue 31 changed as they were at
@@ -196,7 +212,7 @@ def before_paths(commit: str = BEFORE):
                      (layers.Dropout, "forward", _torch_dropout),
                      (layers.Conv1d, "forward", torch.nn.Conv1d.forward),
                      (layers.MultiHeadAttention, "attend",
-                      vars(old_layers.MultiHeadAttention)["attend"])):
+                      _unpacked(vars(old_layers.MultiHeadAttention)["attend"]))):
             gemm.uninstall()
             yield
     finally:
@@ -214,13 +230,22 @@ def before_available(who: str) -> bool:
     return True
 
 
+def path_generator(path: str, method: str, cfg: dict, clips, fps: float):
+    """A fresh generator of ``method`` from a train job's ``cfg``, with the ``before`` path's
+    config switches (:data:`BEFORE_CONFIG`) when ``path`` is "before"."""
+    from repro.models.base import generator_class
+
+    config = dict(cfg["method_config"])
+    if path == "before":
+        config.update(BEFORE_CONFIG.get(method, {}))
+    return generator_class(method)(config, clips.skeleton, clips.n_classes, fps)
+
+
 def run_path(path: str, method: str, cfg: dict, clips, train_items, steps: int):
     """One capped ``fit`` of ``method`` on ``path`` ("before" / "after"): (Capped, weights)."""
-    from repro.models.base import generator_class
     from repro.train import loop
 
-    cls = generator_class(method)
-    gen = cls(cfg["method_config"], clips.skeleton, clips.n_classes, train_items.fps)
+    gen = path_generator(path, method, cfg, clips, train_items.fps)
     ctx = before_paths() if path == "before" else contextlib.nullcontext()
     with ctx:
         cap = Capped(loop.train, steps)

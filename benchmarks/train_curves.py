@@ -8,9 +8,13 @@ recording the validation loss of every epoch on the job's held-out share of the 
 The statement per method: at every epoch, the difference of the two paths' mean validation
 losses against the seed-to-seed spread (the pooled standard deviation of the seeds, both paths);
 "within the spread" when the difference is at most that standard deviation at every epoch.
+Beside it, for curves whose epoch-to-epoch noise is large (:func:`exceedance`): the share of
+epochs outside the spread against the share expected when the two paths are equivalent (their
+seeds independent draws of one distribution), and how many epochs each path was the lower.
 Printed as a table, written with every raw value by ``--json FILE``.
 
     .venv/bin/python benchmarks/train_curves.py --methods marionet --json out.json [--seeds 0,1,2]
+        [--before-from earlier.json]   # reuse an earlier run's "before" curves
 
 A full ``medium`` training per seed and path: minutes to tens of minutes per method on a 2-core
 machine (MarioNet ~3 minutes after, ~6 before, per seed).  Needs the git history holding the
@@ -34,7 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import repro  # noqa: F401,E402  (pins the kernel paths before torch / numpy load)
 import torch  # noqa: E402
 from bench_train_throughput import (BEFORE, METHOD_SPECS, head_commit, before_available,  # noqa: E402
-                                    before_paths, train_job_configs)
+                                    before_paths, path_generator, train_job_configs)
 
 #: the history key each method's curve is read from (the validation loss of its own objective)
 CURVE = "val_loss"
@@ -42,10 +46,7 @@ CURVE = "val_loss"
 
 def curve(method: str, cfg: dict, clips, train_items, val_items, seed: int, path: str):
     """(validation losses per epoch, seconds) of one full training of ``method``."""
-    from repro.models.base import generator_class
-
-    cls = generator_class(method)
-    gen = cls(cfg["method_config"], clips.skeleton, clips.n_classes, train_items.fps)
+    gen = path_generator(path, method, cfg, clips, train_items.fps)
     ctx = before_paths() if path == "before" else contextlib.nullcontext()
     t0 = time.perf_counter()
     with ctx:
@@ -68,12 +69,30 @@ def summarise(before: list[list[float]], after: list[list[float]]) -> list[dict]
     return rows
 
 
+def exceedance(rows: list[dict], n_seeds: int) -> dict:
+    """Epochs outside the seed spread, against chance: with ``n`` seeds per path drawn from one
+    distribution (sd σ), the difference of the two means has sd σ·√(2/n), so it exceeds σ with
+    probability 2·(1 − Φ(√(n/2))) (0.22 for 3 seeds, 0.08 for 6; σ taken as known).  Also the
+    epochs where each path's mean is the lower (a systematic shift shows as one-sided)."""
+    expected = math.erfc(math.sqrt(n_seeds / 2) / math.sqrt(2))
+    out = [r for r in rows if not r["within"]]
+    return {"epochs": len(rows), "outside": len(out),
+            "outside_share": len(out) / len(rows) if rows else float("nan"),
+            "expected_share_if_equivalent": expected,
+            "after_lower": sum(r["diff"] < 0 for r in rows),
+            "before_lower": sum(r["diff"] > 0 for r in rows)}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--methods", required=True, help="comma-separated trained methods")
     ap.add_argument("--seeds", default="0,1,2", help="training seeds (at least two)")
     ap.add_argument("--scale", default="medium")
     ap.add_argument("--json", default=None, metavar="FILE")
+    ap.add_argument("--before-from", default=None, metavar="FILE",
+                    help="take the 'before' curves from an earlier --json FILE (same before "
+                         "commit, scale and seeds) instead of training them again: the "
+                         "before paths do not change, only today's do")
     a = ap.parse_args(argv)
     methods = [m.strip() for m in a.methods.split(",") if m.strip()]
     seeds = [int(s) for s in a.seeds.split(",") if s.strip()]
@@ -89,6 +108,17 @@ def main(argv=None) -> int:
 
     if not before_available("curves"):
         return 2
+    earlier = {}
+    if a.before_from:
+        try:
+            prev = json.loads(Path(a.before_from).read_text())
+            if (prev.get("before"), prev.get("scale"), prev.get("seeds")) != (BEFORE, a.scale, seeds):
+                raise ValueError(f"made for before {prev.get('before')}, scale "
+                                 f"{prev.get('scale')}, seeds {prev.get('seeds')}")
+            earlier = {m: prev["methods"][m] for m in methods}
+        except (OSError, ValueError, KeyError) as e:
+            print(f"curves: {a.before_from}: cannot take its before curves ({e})", file=sys.stderr)
+            return 2
     try:
         scale = resolve_scale(a.scale)
         configs = train_job_configs(methods, scale, None)
@@ -107,8 +137,14 @@ def main(argv=None) -> int:
         train_items, val_items = holdout(items, fraction, val_seed)
         raw = {"before": [], "after": []}
         secs = {"before": [], "after": []}
+        paths = ("before", "after")
+        if m in earlier:
+            raw["before"] = earlier[m]["raw"]["before"]
+            secs["before"] = earlier[m]["seconds"]["before"]
+            paths = ("after",)
+            out.setdefault("before_from", {})[m] = a.before_from
         for s in seeds:
-            for path in ("before", "after"):
+            for path in paths:
                 c, t = curve(m, cfg, clips, train_items, val_items, s, path)
                 raw[path].append(c)
                 secs[path].append(t)
@@ -116,7 +152,9 @@ def main(argv=None) -> int:
                       flush=True)
         rows = summarise(raw["before"], raw["after"])
         ok = all(r["within"] for r in rows)
-        out["methods"][m] = {"raw": raw, "seconds": secs, "epochs": rows, "equivalent": ok}
+        ex = exceedance(rows, len(seeds))
+        out["methods"][m] = {"raw": raw, "seconds": secs, "epochs": rows, "equivalent": ok,
+                             "exceedance": ex}
         print(f"\n{m}: {CURVE} per epoch over seeds {seeds} (mean ± sd)")
         print("| epoch | before | after | after − before | seed sd (pooled) | within |")
         print("| ---: | ---: | ---: | ---: | ---: | --- |")
@@ -124,6 +162,10 @@ def main(argv=None) -> int:
             print(f"| {r['epoch']} | {r['before_mean']:.4f} ± {r['before_sd']:.4f} | "
                   f"{r['after_mean']:.4f} ± {r['after_sd']:.4f} | {r['diff']:+.4f} | "
                   f"{r['pooled_sd']:.4f} | {'yes' if r['within'] else 'no'} |")
+        print(f"{m}: outside the spread at {ex['outside']} of {ex['epochs']} epochs "
+              f"({ex['outside_share']:.0%}; {ex['expected_share_if_equivalent']:.0%} expected "
+              f"for equivalent paths); after lower at {ex['after_lower']}, before lower at "
+              f"{ex['before_lower']}")
         print(f"{m}: {'within the seed spread at every epoch' if ok else 'NOT within'}; "
               f"training time before {statistics.fmean(secs['before']):.0f} s, after "
               f"{statistics.fmean(secs['after']):.0f} s per seed\n", flush=True)

@@ -1,7 +1,8 @@
 """Issue 31's number-changing layers (repro/models/layers.py): dropout from 16 random bits per
 element and ``Conv1d`` as an unfolded product are the functions they replace — the rate, the
 scale, train/eval, gradients; the convolution equal to ``nn.Conv1d``'s to rounding, with its
-gradients — and the attention with weight dropout written out equals SDPA without dropout."""
+gradients — the attention with weight dropout written out equals SDPA without dropout, and
+layers run on packed valid tokens give the padded layers' valid rows."""
 
 from __future__ import annotations
 
@@ -97,3 +98,39 @@ def test_attention_with_every_key_padded_attends_to_nothing_with_finite_gradient
     att.eval()
     ref = att(q, kv, key_padding_mask=pad)
     assert torch.allclose(out[1], ref[1], atol=1e-6)  # the padded item: the output bias alone
+
+
+def test_packed_tokens_compute_the_padded_layers_valid_rows():
+    """``Packing`` (issue 31, MarioNet's ``packed_frames``): an encoder and a causal decoder
+    over a memory, run on the valid tokens only, give the padded pass's valid rows (eval mode:
+    no dropout draws) and the same gradients, to rounding; pack and unpack are inverse on the
+    valid rows, ``unpack`` fills the padded ones."""
+    torch.manual_seed(0)
+    B, T, d = 3, 7, 16
+    lengths = torch.tensor([7, 3, 5])
+    valid = torch.arange(T)[None] < lengths[:, None]
+    pk = layers.Packing(valid)
+    x = torch.randn(B, T, d, requires_grad=True)
+    assert torch.equal(pk.unpack(pk.pack(x))[valid], x[valid])
+    assert torch.equal(pk.unpack(pk.pack(x))[~valid], torch.zeros(int((~valid).sum()), d))
+    assert torch.equal(pk.unpack(pk.pack(x), torch.ones(d))[~valid],
+                       torch.ones(int((~valid).sum()), d))
+    enc = layers.TransformerEncoder(2, d, 4, 32, 0.1, "gelu").eval()
+    dec = layers.TransformerDecoder(2, d, 4, 32, 0.1, "relu").eval()
+
+    def run(packed: bool):
+        x.grad = None
+        for p in (*enc.parameters(), *dec.parameters()):
+            p.grad = None
+        p = pk if packed else None
+        h = enc(pk.pack(x) if packed else x, key_padding_mask=~valid, packing=p)
+        y = dec(h, h, causal=True, mem_padding_mask=~valid, packing=p, mem_packing=p)
+        y = pk.unpack(y) if packed else y
+        (y[valid] ** 2).sum().backward()
+        return y[valid].detach(), [x.grad.clone()] + [q.grad.clone() for q in (
+            *enc.parameters(), *dec.parameters())]
+
+    (y1, g1), (y0, g0) = run(True), run(False)
+    assert torch.allclose(y1, y0, atol=1e-5)
+    for a, b in zip(g1, g0):
+        assert torch.allclose(a, b, rtol=1e-4, atol=1e-5)

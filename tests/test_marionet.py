@@ -320,6 +320,49 @@ def test_loss_terms_follow_eq1():
 # -- training, sampling, determinism, persistence --------------------------------------------
 
 
+@pytest.mark.parametrize("over", [{}, {"standardize_poses": False, "time_unrolling": False}])
+def test_packed_frames_compute_the_padded_step(clips, items, over):
+    """Issue 31: a training step over the valid frames only (``packed_frames``, the default)
+    computes the padded step's loss terms and gradients (to rounding) when no dropout draws
+    differ (eval mode), both passes of scheduled sampling included; the padded frames of a
+    packed decode are finite."""
+    torch.manual_seed(0)
+    m = model(clips, ss_threshold_m=1e9, **over)
+    b = batch(m, items)
+    assert int(b["lengths"].min()) < b["target"].shape[1]          # the batch has padding
+    unpacked = MarioNet(m.config.model_copy(update={"packed_frames": False}), clips.skeleton,
+                        clips.n_classes, clips.fps)
+    unpacked.network.load_state_dict(m.network.state_dict())
+    outs, grads = [], []
+    for g in (m, unpacked):
+        g.network.eval()
+        g.network.zero_grad()
+        torch.manual_seed(3)
+        out = g.training_step(g.network, b, epoch=2)
+        out["loss"].backward()
+        outs.append(out)
+        grads.append([p.grad.clone() for p in g.network.parameters() if p.grad is not None])
+    assert outs[0]["ss_active"] == 1.0
+    for k in ("loss", "rec1", "rec2", "L_J", "kl", "mpjpe"):
+        assert torch.allclose(outs[0][k], outs[1][k], rtol=1e-5, atol=1e-7), k
+    assert len(grads[0]) == len(grads[1])
+    for a, c in zip(*grads):
+        assert torch.allclose(a, c, rtol=1e-4, atol=1e-6)
+    net = m.network
+    mask = ~net.padding_mask(b["lengths"], b["target"].shape[1])
+    from repro.models.layers import Packing
+    packing = Packing(mask)
+    with torch.no_grad():
+        mu, _, tag, _ = net.encode(b["init"], b["labels"], b["next_labels"])
+        ctrl = net.controls(mu, tag, b["trajectory"], b["lengths"], packing)
+        assert ctrl.shape == (int(mask.sum()), m.config.d_model)
+        gt_in = torch.cat([b["init"][:, -1:], b["target"][:, :-1]], 1)
+        p = net.decode(gt_in, ctrl, b["lengths"], packing=packing)
+        full = net.decode(gt_in, net.controls(mu, tag, b["trajectory"], b["lengths"]), b["lengths"])
+    assert p.shape == full.shape and torch.isfinite(p).all()
+    assert torch.allclose(p[mask], full[mask], atol=1e-5)
+
+
 def test_fit_learns_and_is_deterministic(clips, items, test_items, tmp_path):
     hist = []
     run = dict(epochs=6, lr=3e-3, ss_threshold_m=1e9)

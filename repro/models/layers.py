@@ -119,6 +119,31 @@ class Conv1d(nn.Conv1d):
         return out.transpose(1, 2)
 
 
+class Packing:
+    """The valid tokens of a padded batch as one matrix (issue 31): ``valid`` (B, T) bool.
+    :meth:`pack` takes (B, T, ...) to (N, ...), the N valid tokens in batch-major order;
+    :meth:`unpack` puts them back, zeros at the padded places.  A position-wise layer (linear,
+    layer norm, dropout) on packed tokens computes the padded layer's valid rows without the
+    padded ones; attention unpacks its projected queries, keys and values, so every valid
+    query sees the keys it saw before (padded keys are masked, or, causally, only seen by padded
+    queries) and its output rows are the padded pass's (to rounding: a product over fewer rows;
+    dropout draws one mask element per packed element)."""
+
+    def __init__(self, valid: torch.Tensor):
+        self.B, self.T = valid.shape
+        self.index = valid.reshape(-1).nonzero().squeeze(1)
+
+    def pack(self, x: torch.Tensor) -> torch.Tensor:
+        return x.reshape(self.B * self.T, *x.shape[2:]).index_select(0, self.index)
+
+    def unpack(self, x: torch.Tensor, fill: torch.Tensor | None = None) -> torch.Tensor:
+        """(N, ...) -> (B, T, ...); the padded places zero, or ``fill`` (broadcast to one
+        token's shape)."""
+        shape = (self.B * self.T, *x.shape[1:])
+        base = x.new_zeros(shape) if fill is None else fill.to(x.dtype).expand(shape).contiguous()
+        return base.index_copy(0, self.index, x).view(self.B, self.T, *x.shape[1:])
+
+
 def _padding_to_additive(mask: torch.Tensor | None, dtype) -> torch.Tensor | None:
     """(B, Lk) bool padding mask -> (B, 1, 1, Lk) additive float mask (``-inf`` where padded)."""
     if mask is None:
@@ -149,11 +174,20 @@ class MultiHeadAttention(nn.Module):
         B, L, _ = x.shape
         return x.view(B, L, self.n_heads, self.d_model // self.n_heads).transpose(1, 2)
 
-    def project_kv(self, kv_in: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        return self._split(self.k(kv_in)), self._split(self.v(kv_in))
+    def project_kv(self, kv_in: torch.Tensor, packing: Packing | None = None
+                   ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Keys and values (B, H, Lk, dh) of ``kv_in`` (B, Lk, d), or of packed tokens
+        (N, d) with their ``packing`` (zeros at the padded keys)."""
+        if packing is None:
+            return self._split(self.k(kv_in)), self._split(self.v(kv_in))
+        return self._split(packing.unpack(self.k(kv_in))), self._split(packing.unpack(self.v(kv_in)))
 
-    def attend(self, q_in, k, v, *, causal: bool = False, key_padding_mask=None) -> torch.Tensor:
-        q = self._split(self.q(q_in))
+    def attend(self, q_in, k, v, *, causal: bool = False, key_padding_mask=None,
+               packing: Packing | None = None) -> torch.Tensor:
+        """Attention of queries ``q_in`` (B, Lq, d; packed (N, d) with ``packing``, and the
+        output packed too) over projected keys/values."""
+        q = self.q(q_in)
+        q = self._split(q if packing is None else packing.unpack(q))
         mask = _padding_to_additive(key_padding_mask, q.dtype)
         if causal:
             Lq, Lk = q.shape[-2], k.shape[-2]
@@ -180,11 +214,15 @@ class MultiHeadAttention(nn.Module):
         else:
             o = F.scaled_dot_product_attention(q, k, v, attn_mask=mask)
         B, H, L, dh = o.shape
-        return self.out(o.transpose(1, 2).reshape(B, L, H * dh))
+        o = o.transpose(1, 2).reshape(B, L, H * dh)
+        return self.out(o if packing is None else packing.pack(o))
 
-    def forward(self, q_in, kv_in, *, causal: bool = False, key_padding_mask=None):
-        k, v = self.project_kv(kv_in)
-        return self.attend(q_in, k, v, causal=causal, key_padding_mask=key_padding_mask)
+    def forward(self, q_in, kv_in, *, causal: bool = False, key_padding_mask=None,
+                packing: Packing | None = None):
+        """Self-attention when ``kv_in`` is ``q_in``; ``packing`` packs both."""
+        k, v = self.project_kv(kv_in, packing)
+        return self.attend(q_in, k, v, causal=causal, key_padding_mask=key_padding_mask,
+                           packing=packing)
 
 
 class FeedForward(nn.Module):
@@ -209,8 +247,9 @@ class EncoderLayer(nn.Module):
         self.norm1, self.norm2 = nn.LayerNorm(d_model), nn.LayerNorm(d_model)
         self.drop1, self.drop2 = Dropout(dropout), Dropout(dropout)
 
-    def forward(self, x, key_padding_mask=None):
-        x = self.norm1(x + self.drop1(self.attn(x, x, key_padding_mask=key_padding_mask)))
+    def forward(self, x, key_padding_mask=None, packing: Packing | None = None):
+        x = self.norm1(x + self.drop1(self.attn(x, x, key_padding_mask=key_padding_mask,
+                                                packing=packing)))
         return self.norm2(x + self.drop2(self.ff(x)))
 
 
@@ -221,9 +260,11 @@ class TransformerEncoder(nn.Module):
         self.layers = nn.ModuleList(
             EncoderLayer(d_model, n_heads, d_ff, dropout, activation) for _ in range(n_layers))
 
-    def forward(self, x, key_padding_mask=None):
+    def forward(self, x, key_padding_mask=None, packing: Packing | None = None):
+        """``x`` (B, L, d), or its valid tokens (N, d) with their ``packing`` (output packed
+        too: :class:`Packing`)."""
         for layer in self.layers:
-            x = layer(x, key_padding_mask)
+            x = layer(x, key_padding_mask, packing)
         return x
 
 
@@ -344,16 +385,19 @@ class DecoderLayer(nn.Module):
         self.norm1, self.norm2, self.norm3 = (nn.LayerNorm(d_model) for _ in range(3))
         self.drop1, self.drop2, self.drop3 = (Dropout(dropout) for _ in range(3))
 
-    def _tail(self, x, mem_k, mem_v, mem_mask):
+    def _tail(self, x, mem_k, mem_v, mem_mask, packing: Packing | None = None):
         x = self.norm2(x + self.drop2(self.cross_attn.attend(x, mem_k, mem_v,
-                                                             key_padding_mask=mem_mask)))
+                                                             key_padding_mask=mem_mask,
+                                                             packing=packing)))
         return self.norm3(x + self.drop3(self.ff(x)))
 
-    def forward(self, x, memory, *, causal: bool, self_padding_mask=None, mem_padding_mask=None):
-        sa = self.self_attn(x, x, causal=causal, key_padding_mask=self_padding_mask)
+    def forward(self, x, memory, *, causal: bool, self_padding_mask=None, mem_padding_mask=None,
+                packing: Packing | None = None, mem_packing: Packing | None = None):
+        sa = self.self_attn(x, x, causal=causal, key_padding_mask=self_padding_mask,
+                            packing=packing)
         x = self.norm1(x + self.drop1(sa))
-        mk, mv = self.cross_attn.project_kv(memory)
-        return self._tail(x, mk, mv, mem_padding_mask)
+        mk, mv = self.cross_attn.project_kv(memory, mem_packing)
+        return self._tail(x, mk, mv, mem_padding_mask, packing)
 
     def step_weights(self) -> tuple:
         """This layer's weights for :meth:`step`: the self-attention's
@@ -387,10 +431,13 @@ class TransformerDecoder(nn.Module):
             DecoderLayer(d_model, n_heads, d_ff, dropout, activation) for _ in range(n_layers))
 
     def forward(self, x, memory, *, causal: bool = False, self_padding_mask=None,
-                mem_padding_mask=None):
+                mem_padding_mask=None, packing: Packing | None = None,
+                mem_packing: Packing | None = None):
+        """``x`` (B, L, d) over ``memory`` (B, Lm, d); either may be its valid tokens only with
+        its :class:`Packing` (``packing``: the output is packed too)."""
         for layer in self.layers:
             x = layer(x, memory, causal=causal, self_padding_mask=self_padding_mask,
-                      mem_padding_mask=mem_padding_mask)
+                      mem_padding_mask=mem_padding_mask, packing=packing, mem_packing=mem_packing)
         return x
 
     @torch.inference_mode()

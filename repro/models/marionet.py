@@ -52,7 +52,8 @@ from torch import nn
 from repro.data.action_items import ActionItems, GeneratedItems, pad_last
 from repro.models.base import Generator, register
 from repro.models.baseline_io import check_items
-from repro.models.layers import TransformerDecoder, TransformerEncoder, sinusoidal_encoding
+from repro.models.layers import (Packing, TransformerDecoder, TransformerEncoder,
+                                 sinusoidal_encoding)
 from repro.models.marionet_config import MARIONET, MarioNetConfig
 from repro.motion.motion import Motion
 from repro.motion.rotations import matrix_to_6d, sixd_to_matrix
@@ -105,10 +106,17 @@ class MarioNetNet(nn.Module):
             poses = (poses - self.pose_mean) / self.pose_std
         return enc(poses)
 
-    def decode_poses(self, h) -> torch.Tensor:
-        """``pose_decode``, back to physical units (6D, metres)."""
+    def decode_poses(self, h, packing: Packing | None = None) -> torch.Tensor:
+        """``pose_decode``, back to physical units (6D, metres).  With ``packing``, ``h`` holds
+        the valid frames only (N, d) and the poses come back padded (B, T, P), the padded
+        frames the rest pose (identity rotations, root at the origin: a proper input for
+        forward kinematics, masked out of every loss)."""
         p = self.pose_decode(h)
-        return p * self.pose_std + self.pose_mean if self.cfg.standardize_poses else p
+        p = p * self.pose_std + self.pose_mean if self.cfg.standardize_poses else p
+        if packing is None:
+            return p
+        eye = matrix_to_6d(torch.eye(3, dtype=p.dtype, device=p.device))
+        return packing.unpack(p, torch.cat([eye.repeat(self.n_joints), p.new_zeros(3)]))
 
     # -- condition encoder ---------------------------------------------------------------------
     def embed_tags(self, labels: torch.Tensor) -> torch.Tensor:
@@ -140,25 +148,30 @@ class MarioNetNet(nn.Module):
         q = sinusoidal_encoding(rev, self.cfg.d_model).to(tag.dtype)
         return q + tag[:, None] if self.cfg.tag_injection else q
 
-    def frame_latents(self, z, tag, lengths, T: int) -> torch.Tensor:
-        """(B, T, d) frame-level latents ``z_1..z_T``."""
+    def frame_latents(self, z, tag, lengths, T: int, packing: Packing | None = None) -> torch.Tensor:
+        """(B, T, d) frame-level latents ``z_1..z_T`` (their valid frames (N, d) with
+        ``packing``)."""
         cfg = self.cfg
         if not cfg.time_unrolling:  # ablation: Z broadcast to every frame
             frames = z[:, None].expand(-1, T, -1)
-            return frames + tag[:, None] if cfg.tag_injection else frames
+            frames = frames + tag[:, None] if cfg.tag_injection else frames
+            return frames if packing is None else packing.pack(frames)
         q = self.unroll_query(tag, lengths, T)
-        return self.unroll(q, z[:, None], causal=False,
-                           self_padding_mask=self.padding_mask(lengths, T))
+        return self.unroll(q if packing is None else packing.pack(q), z[:, None], causal=False,
+                           self_padding_mask=self.padding_mask(lengths, T), packing=packing)
 
-    def controls(self, z, tag, trajectory, lengths) -> torch.Tensor:
-        """(B, T, d) frame-level controls ``[z̃_t ‖ u_t]`` (d̃ + d_traj)."""
+    def controls(self, z, tag, trajectory, lengths, packing: Packing | None = None) -> torch.Tensor:
+        """(B, T, d) frame-level controls ``[z̃_t ‖ u_t]`` (d̃ + d_traj); with ``packing``
+        (:class:`~repro.models.layers.Packing` of the valid frames) those of the valid frames
+        only, (N, d): every position-wise layer then skips the padded frames (issue 31)."""
         T = trajectory.shape[1]
         pad = self.padding_mask(lengths, T)
-        latent = self.unroll_proj(self.frame_latents(z, tag, lengths, T))
+        latent = self.unroll_proj(self.frame_latents(z, tag, lengths, T, packing))
         u = self.traj_embed(trajectory)
         if self.cfg.traj_positional:
             u = u + sinusoidal_encoding(torch.arange(T, device=u.device), self.cfg.traj_dim).to(u.dtype)
-        u = self.traj_encoder(u, key_padding_mask=pad)
+        u = self.traj_encoder(u if packing is None else packing.pack(u), key_padding_mask=pad,
+                              packing=packing)
         return torch.cat([latent, u], dim=-1)
 
     # -- motion decoder --------------------------------------------------------------------------
@@ -170,13 +183,25 @@ class MarioNetNet(nn.Module):
                                   self.cfg.d_model)
         return x + pos.to(x.dtype)
 
-    def decode(self, poses_in, controls, lengths, first_feature=None) -> torch.Tensor:
+    def decode(self, poses_in, controls, lengths, first_feature=None,
+               packing: Packing | None = None) -> torch.Tensor:
         """Teacher-forced parallel pass: poses ``P_0..P_{T−1}`` (B, T, P) → ``P*_1..P*_T``.
-        ``first_feature`` (B, d) replaces the BOP embedding (Shadow Start, Sec. 4.3.2)."""
-        T = controls.shape[1]
-        y = self.decoder(self._query(poses_in, 0, first_feature), controls, causal=True,
-                         mem_padding_mask=self.padding_mask(lengths, T))
-        return self.decode_poses(y)
+        ``first_feature`` (B, d) replaces the BOP embedding (Shadow Start, Sec. 4.3.2).  With
+        ``packing``, ``controls`` are the valid frames' (:meth:`controls` with the same
+        packing) and only the valid frames are computed (the output is padded)."""
+        if packing is None:
+            T = controls.shape[1]
+            y = self.decoder(self._query(poses_in, 0, first_feature), controls, causal=True,
+                             mem_padding_mask=self.padding_mask(lengths, T))
+            return self.decode_poses(y)
+        if first_feature is not None:
+            raise ValueError("a packed decode takes no first_feature (Shadow Start decodes unpacked)")
+        T = poses_in.shape[1]
+        x = self.embed_poses(packing.pack(poses_in))
+        x = x + sinusoidal_encoding(packing.index % T, self.cfg.d_model).to(x.dtype)
+        y = self.decoder(x, controls, causal=True, mem_padding_mask=self.padding_mask(lengths, T),
+                         packing=packing, mem_packing=packing)
+        return self.decode_poses(y, packing)
 
     def generate(self, bop, controls, lengths, *, use_cache: bool = True,
                  first_feature=None) -> torch.Tensor:
@@ -351,10 +376,11 @@ class MarioNet(Generator):
         mask = ~net.padding_mask(lengths, T)
         mu, logvar, tag, _ = net.encode(batch["init"], batch["labels"], batch["next_labels"])
         z = mu + torch.exp(0.5 * logvar) * torch.randn_like(mu)
-        ctrl = net.controls(z, tag, batch["trajectory"], lengths)
+        packing = Packing(mask) if cfg.packed_frames else None         # valid frames only
+        ctrl = net.controls(z, tag, batch["trajectory"], lengths, packing)
         bop = batch["init"][:, -1:]
         gt_in = torch.cat([bop, batch["target"][:, :-1]], dim=1)       # P_0 .. P_{T-1}
-        p1 = net.decode(gt_in, ctrl, lengths)                           # P'_1 .. P'_T
+        p1 = net.decode(gt_in, ctrl, lengths, packing=packing)          # P'_1 .. P'_T
         rec1 = reconstruction_loss(cfg, self.skeleton, p1, batch["target"], batch["joints"],
                                    mask, lengths)
         xi = linear_ramp(epoch, cfg.ss_activate_epoch, cfg.ss_accomplish_epoch)
@@ -365,7 +391,8 @@ class MarioNet(Generator):
             pred = p1.detach() if cfg.ss_detach else p1
             take = (torch.rand(p1.shape[:2], device=p1.device) < xi)[:, :-1, None]
             mixed = torch.where(take, pred[:, :-1], batch["target"][:, :-1])  # P^mix_1..P^mix_{T-1}
-            p2 = net.decode(torch.cat([bop, mixed], dim=1), ctrl, lengths)   # P''_1 .. P''_T
+            p2 = net.decode(torch.cat([bop, mixed], dim=1), ctrl, lengths,
+                            packing=packing)                                  # P''_1 .. P''_T
             rec2 = reconstruction_loss(cfg, self.skeleton, p2, batch["target"], batch["joints"],
                                        mask, lengths)["total"]
             lam1, lam2 = cfg.ss_lambda1, cfg.ss_lambda2

@@ -67,6 +67,9 @@ class MarioNetConfig(GeneratorConfig):
     # sampling
     sample_batch_size: int = 64
     kv_cache: bool = True
+    # training computes the valid frames of a padded batch only (repro.models.layers.Packing;
+    # issue 31): the same function, to rounding and dropout's draws; False: every padded frame
+    packed_frames: bool = True
 
     @model_validator(mode="after")
     def _check(self):
