@@ -346,8 +346,9 @@ def test_packed_frames_compute_the_padded_step(clips, items, over):
     for k in ("loss", "rec1", "rec2", "L_J", "kl", "mpjpe"):
         assert torch.allclose(outs[0][k], outs[1][k], rtol=1e-5, atol=1e-7), k
     assert len(grads[0]) == len(grads[1])
-    for a, c in zip(*grads):
-        assert torch.allclose(a, c, rtol=1e-4, atol=1e-6)
+    scale = max(float(c.abs().max()) for c in grads[1])
+    for a, c in zip(*grads):  # to rounding, against the gradients' scale
+        assert float((a - c).abs().max()) <= 1e-5 * scale
     net = m.network
     mask = ~net.padding_mask(b["lengths"], b["target"].shape[1])
     from repro.models.layers import Packing

@@ -131,7 +131,8 @@ class Packing:
 
     def __init__(self, valid: torch.Tensor):
         self.B, self.T = valid.shape
-        self.index = valid.reshape(-1).nonzero().squeeze(1)
+        # found on the host (a data-dependent size: one device sync, as ``nonzero`` has anyway)
+        self.index = valid.reshape(-1).cpu().nonzero().squeeze(1).to(valid.device)
 
     def pack(self, x: torch.Tensor) -> torch.Tensor:
         return x.reshape(self.B * self.T, *x.shape[2:]).index_select(0, self.index)
