@@ -71,10 +71,14 @@ def summarise(before: list[list[float]], after: list[list[float]]) -> list[dict]
 
 def exceedance(rows: list[dict], n_seeds: int) -> dict:
     """Epochs outside the seed spread, against chance: with ``n`` seeds per path drawn from one
-    distribution (sd σ), the difference of the two means has sd σ·√(2/n), so it exceeds σ with
-    probability 2·(1 − Φ(√(n/2))) (0.22 for 3 seeds, 0.08 for 6; σ taken as known).  Also the
-    epochs where each path's mean is the lower (a systematic shift shows as one-sided)."""
-    expected = math.erfc(math.sqrt(n_seeds / 2) / math.sqrt(2))
+    normal distribution, the difference of the two means over the pooled sample sd (2(n − 1)
+    degrees of freedom) times √(n/2) is Student-t with 2(n − 1) degrees of freedom, so the
+    difference exceeds the pooled sd with probability 2·P(T > √(n/2)) (0.29 for 3 seeds per
+    path, 0.11 for 6; 200,000 simulated draws give 0.288 for 3).  Also the epochs where each
+    path's mean is the lower (a systematic shift shows as one-sided)."""
+    from scipy.stats import t as student_t
+
+    expected = float(2 * student_t.sf(math.sqrt(n_seeds / 2), 2 * (n_seeds - 1)))
     out = [r for r in rows if not r["within"]]
     return {"epochs": len(rows), "outside": len(out),
             "outside_share": len(out) / len(rows) if rows else float("nan"),

@@ -320,12 +320,18 @@ def test_loss_terms_follow_eq1():
 # -- training, sampling, determinism, persistence --------------------------------------------
 
 
+@pytest.mark.parametrize("mode", ["eval", "train"])
 @pytest.mark.parametrize("over", [{}, {"standardize_poses": False, "time_unrolling": False}])
-def test_packed_frames_compute_the_padded_step(clips, items, over):
+def test_packed_frames_compute_the_padded_step(clips, items, over, mode, monkeypatch):
     """Issue 31: a training step over the valid frames only (``packed_frames``, the default)
     computes the padded step's loss terms and gradients (to rounding) when no dropout draws
-    differ (eval mode), both passes of scheduled sampling included; the padded frames of a
-    packed decode are finite."""
+    differ (eval mode; or train mode, with the written-out attention, and dropout made the
+    identity), both passes of scheduled sampling included; the padded frames of a packed
+    decode are the rest pose."""
+    from repro.models import layers
+
+    if mode == "train":
+        monkeypatch.setattr(layers, "dropout", lambda x, p, training=True: x)
     torch.manual_seed(0)
     m = model(clips, ss_threshold_m=1e9, **over)
     b = batch(m, items)
@@ -335,7 +341,7 @@ def test_packed_frames_compute_the_padded_step(clips, items, over):
     unpacked.network.load_state_dict(m.network.state_dict())
     outs, grads = [], []
     for g in (m, unpacked):
-        g.network.eval()
+        g.network.train(mode == "train")
         g.network.zero_grad()
         torch.manual_seed(3)
         out = g.training_step(g.network, b, epoch=2)
@@ -362,6 +368,9 @@ def test_packed_frames_compute_the_padded_step(clips, items, over):
         full = net.decode(gt_in, net.controls(mu, tag, b["trajectory"], b["lengths"]), b["lengths"])
     assert p.shape == full.shape and torch.isfinite(p).all()
     assert torch.allclose(p[mask], full[mask], atol=1e-5)
+    from repro.motion.rotations import matrix_to_6d
+    rest = torch.cat([matrix_to_6d(torch.eye(3)).repeat(clips.skeleton.n_joints), torch.zeros(3)])
+    assert torch.allclose(p[~mask], rest.expand(int((~mask).sum()), -1), atol=1e-6)
 
 
 def test_fit_learns_and_is_deterministic(clips, items, test_items, tmp_path):

@@ -245,5 +245,5 @@ def test_curves_statement_reads_the_seed_spread():
     assert rows[1]["pooled_sd"] == pytest.approx(0.02)
     ex = mod.exceedance(rows, 3)
     assert (ex["outside"], ex["after_lower"], ex["before_lower"]) == (1, 0, 1)
-    assert ex["expected_share_if_equivalent"] == pytest.approx(0.2207, abs=1e-3)
-    assert mod.exceedance(rows, 6)["expected_share_if_equivalent"] == pytest.approx(0.0833, abs=1e-3)
+    assert ex["expected_share_if_equivalent"] == pytest.approx(0.2879, abs=1e-3)
+    assert mod.exceedance(rows, 6)["expected_share_if_equivalent"] == pytest.approx(0.1139, abs=1e-3)

@@ -197,6 +197,8 @@ class MarioNetNet(nn.Module):
         if first_feature is not None:
             raise ValueError("a packed decode takes no first_feature (Shadow Start decodes unpacked)")
         T = poses_in.shape[1]
+        if (packing.B, packing.T, len(packing.index)) != (poses_in.shape[0], T, controls.shape[0]):
+            raise ValueError("packed decode: poses, controls and packing disagree in shape")
         x = self.embed_poses(packing.pack(poses_in))
         x = x + sinusoidal_encoding(packing.index % T, self.cfg.d_model).to(x.dtype)
         y = self.decoder(x, controls, causal=True, mem_padding_mask=self.padding_mask(lengths, T),
