@@ -15,6 +15,7 @@ Printed as a table, written with every raw value by ``--json FILE``.
 
     .venv/bin/python benchmarks/train_curves.py --methods marionet --json out.json [--seeds 0,1,2]
         [--before-from earlier.json]   # reuse an earlier run's "before" curves
+    .venv/bin/python benchmarks/train_curves.py --methods macvae --combine a.json,b.json --json c.json
 
 A full ``medium`` training per seed and path: minutes to tens of minutes per method on a 2-core
 machine (MarioNet ~3 minutes after, ~6 before, per seed).  Needs the git history holding the
@@ -87,6 +88,49 @@ def exceedance(rows: list[dict], n_seeds: int) -> dict:
             "before_lower": sum(r["diff"] > 0 for r in rows)}
 
 
+def statement(m: str, raw: dict, secs: dict, seeds: list[int]) -> dict:
+    """The per-method record (raw curves, seconds, per-epoch rows, ``equivalent``,
+    :func:`exceedance`), printed as a table."""
+    rows = summarise(raw["before"], raw["after"])
+    ok = all(r["within"] for r in rows)
+    ex = exceedance(rows, len(seeds))
+    print(f"\n{m}: {CURVE} per epoch over seeds {seeds} (mean ± sd)")
+    print("| epoch | before | after | after − before | seed sd (pooled) | within |")
+    print("| ---: | ---: | ---: | ---: | ---: | --- |")
+    for r in rows:
+        print(f"| {r['epoch']} | {r['before_mean']:.4f} ± {r['before_sd']:.4f} | "
+              f"{r['after_mean']:.4f} ± {r['after_sd']:.4f} | {r['diff']:+.4f} | "
+              f"{r['pooled_sd']:.4f} | {'yes' if r['within'] else 'no'} |")
+    print(f"{m}: outside the spread at {ex['outside']} of {ex['epochs']} epochs "
+          f"({ex['outside_share']:.0%}; {ex['expected_share_if_equivalent']:.0%} expected "
+          f"for equivalent paths); after lower at {ex['after_lower']}, before lower at "
+          f"{ex['before_lower']}")
+    print(f"{m}: {'within the seed spread at every epoch' if ok else 'NOT within'}; "
+          f"training time before {statistics.fmean(secs['before']):.0f} s, after "
+          f"{statistics.fmean(secs['after']):.0f} s per seed\n", flush=True)
+    return {"raw": raw, "seconds": secs, "epochs": rows, "equivalent": ok, "exceedance": ex}
+
+
+def combine(files: list[str], methods: list[str]) -> dict:
+    """One statement per method over the seeds of several earlier ``--json`` runs (same before
+    commit, scale and curve; no seed twice): their raw curves concatenated."""
+    runs = [json.loads(Path(f).read_text()) for f in files]
+    key = {(r["before"], r["scale"], r["curve"]) for r in runs}
+    seeds = [s for r in runs for s in r["seeds"]]
+    if len(key) != 1 or len(set(seeds)) != len(seeds):
+        raise ValueError("the runs differ in before commit, scale or curve, or repeat a seed")
+    before, scale, curve_key = key.pop()
+    out = {"schema": 1, "benchmark": "train_curves", "before": before,
+           "after": [r["after"] for r in runs], "scale": scale, "curve": curve_key,
+           "seeds": seeds, "combined_from": files, "methods": {}}
+    for m in methods:
+        raw = {p: [c for r in runs for c in r["methods"][m]["raw"][p]] for p in ("before", "after")}
+        secs = {p: [t for r in runs for t in r["methods"][m]["seconds"][p]]
+                for p in ("before", "after")}
+        out["methods"][m] = statement(m, raw, secs, seeds)
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--methods", required=True, help="comma-separated trained methods")
@@ -97,9 +141,20 @@ def main(argv=None) -> int:
                     help="take the 'before' curves from an earlier --json FILE (same before "
                          "commit, scale and seeds) instead of training them again: the "
                          "before paths do not change, only today's do")
+    ap.add_argument("--combine", default=None, metavar="FILE,FILE",
+                    help="no training: one statement over the seeds of earlier --json FILEs")
     a = ap.parse_args(argv)
     methods = [m.strip() for m in a.methods.split(",") if m.strip()]
     seeds = [int(s) for s in a.seeds.split(",") if s.strip()]
+    if a.combine:
+        try:
+            out = combine([f for f in a.combine.split(",") if f], methods)
+        except (OSError, ValueError, KeyError) as e:
+            print(f"curves: --combine: {e}", file=sys.stderr)
+            return 2
+        if a.json:
+            Path(a.json).write_text(json.dumps(out, indent=1) + "\n")
+        return 0
     if any(m not in METHOD_SPECS for m in methods) or len(seeds) < 2:
         print(f"curves: --methods from {', '.join(METHOD_SPECS)}; --seeds at least two",
               file=sys.stderr)
@@ -154,25 +209,7 @@ def main(argv=None) -> int:
                 secs[path].append(t)
                 print(f"{m} seed {s} {path}: {len(c)} epochs, {t:.0f} s, last {c[-1]:.5g}",
                       flush=True)
-        rows = summarise(raw["before"], raw["after"])
-        ok = all(r["within"] for r in rows)
-        ex = exceedance(rows, len(seeds))
-        out["methods"][m] = {"raw": raw, "seconds": secs, "epochs": rows, "equivalent": ok,
-                             "exceedance": ex}
-        print(f"\n{m}: {CURVE} per epoch over seeds {seeds} (mean ± sd)")
-        print("| epoch | before | after | after − before | seed sd (pooled) | within |")
-        print("| ---: | ---: | ---: | ---: | ---: | --- |")
-        for r in rows:
-            print(f"| {r['epoch']} | {r['before_mean']:.4f} ± {r['before_sd']:.4f} | "
-                  f"{r['after_mean']:.4f} ± {r['after_sd']:.4f} | {r['diff']:+.4f} | "
-                  f"{r['pooled_sd']:.4f} | {'yes' if r['within'] else 'no'} |")
-        print(f"{m}: outside the spread at {ex['outside']} of {ex['epochs']} epochs "
-              f"({ex['outside_share']:.0%}; {ex['expected_share_if_equivalent']:.0%} expected "
-              f"for equivalent paths); after lower at {ex['after_lower']}, before lower at "
-              f"{ex['before_lower']}")
-        print(f"{m}: {'within the seed spread at every epoch' if ok else 'NOT within'}; "
-              f"training time before {statistics.fmean(secs['before']):.0f} s, after "
-              f"{statistics.fmean(secs['after']):.0f} s per seed\n", flush=True)
+        out["methods"][m] = statement(m, raw, secs, seeds)
         if a.json:
             Path(a.json).write_text(json.dumps(out, indent=1) + "\n")
     return 0

@@ -247,3 +247,33 @@ def test_curves_statement_reads_the_seed_spread():
     assert (ex["outside"], ex["after_lower"], ex["before_lower"]) == (1, 0, 1)
     assert ex["expected_share_if_equivalent"] == pytest.approx(0.2879, abs=1e-3)
     assert mod.exceedance(rows, 6)["expected_share_if_equivalent"] == pytest.approx(0.1139, abs=1e-3)
+
+
+def test_curves_combine_pools_the_seeds_of_earlier_runs(tmp_path):
+    """``train_curves.py --combine``: one statement over the seeds of several runs (same before
+    commit, scale and curve); a repeated seed or another before commit is refused."""
+    import json
+
+    mod = _load_benchmark("train_curves")
+
+    def run(name, seeds, before, after, commit="a681c37"):
+        p = tmp_path / name
+        p.write_text(json.dumps({"before": commit, "after": "x", "scale": "medium",
+                                 "curve": "val_loss", "seeds": seeds, "methods": {"m": {
+                                     "raw": {"before": before, "after": after},
+                                     "seconds": {"before": [1.0] * len(seeds),
+                                                 "after": [1.0] * len(seeds)}}}}))
+        return str(p)
+
+    a = run("a.json", [0, 1], [[1.0, 0.5], [1.2, 0.7]], [[1.1, 0.6], [1.3, 0.8]])
+    b = run("b.json", [2, 3], [[1.1, 0.6], [0.9, 0.4]], [[1.0, 0.5], [1.2, 0.7]])
+    out = mod.combine([a, b], ["m"])
+    assert out["seeds"] == [0, 1, 2, 3]
+    rows = out["methods"]["m"]["epochs"]
+    assert rows[0]["before_mean"] == pytest.approx(1.05) and rows[0]["after_mean"] == pytest.approx(1.15)
+    assert out["methods"]["m"]["exceedance"]["expected_share_if_equivalent"] == pytest.approx(
+        mod.exceedance(rows, 4)["expected_share_if_equivalent"])
+    with pytest.raises(ValueError):
+        mod.combine([a, a], ["m"])
+    with pytest.raises(ValueError):
+        mod.combine([a, run("c.json", [5, 6], [[1, 1], [1, 1]], [[1, 1], [1, 1]], "other")], ["m"])
