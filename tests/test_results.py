@@ -354,6 +354,25 @@ def test_before_31_history_covers_every_quick_spec():
     assert len(tables) == len(set(tables)) == 18
 
 
+UNPACKED = _records("quick-unpacked")
+
+
+@pytest.mark.parametrize("path", UNPACKED, ids=[p.name for p in UNPACKED])
+def test_quick_records_before_marionets_packed_frames_are_their_values(path):
+    """The Neural Marionette quick records of issue 31's first re-make (code 1a39184: pin v2,
+    MarioNet still trained on padded frames; docs/results.md, "Quick scale"): kept as history,
+    one per spec, each consistent with its own raw values and made under pin v2."""
+    rj, summary = _run(path)
+    assert rj["status"] == "FINISHED" and rj["scale"] == "quick"
+    assert rj["env"]["kernels"]["version"] == 2 and rj["git"]["commit"].startswith("1a39184")
+    _cells_are_their_values(path, summary, 3)
+
+
+def test_unpacked_history_covers_every_marionette_spec():
+    tables = sorted(_run(p)[0]["table"] for p in UNPACKED)
+    assert tables == sorted(_run(p)[0]["table"] for p in QUICK)
+
+
 BEFORE_26 = _records("quick-before-26") + _records("multiact-quick-before-26")
 
 
