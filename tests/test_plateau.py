@@ -386,7 +386,7 @@ def test_a_method_cap_changes_only_that_methods_schedule(tmp_path):
 
     text = scales_path().read_text()
     conv = resolve_scale("converged")
-    assert conv.schedule_for("marionet")["max_minutes"] == 180.0
+    assert conv.schedule_for("marionet")["max_minutes"] == 300.0
     assert conv.schedule_for("odmo")["max_minutes"] == 20.0
     assert resolve_scale("quick").schedule_for("marionet") is None
     # without the table, every method's schedule is the profile's, as before the option
