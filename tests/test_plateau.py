@@ -402,7 +402,7 @@ def test_a_misspelt_method_in_the_caps_is_named_with_a_suggestion(tmp_path):
     from repro.specs.scales import resolve_scale, scales_path
 
     bad = tmp_path / "scales.toml"
-    bad.write_text(scales_path().read_text().replace("marionet = 180.0", "marionett = 180.0"))
+    bad.write_text(scales_path().read_text().replace("marionet = 300.0", "marionett = 300.0"))
     with pytest.raises(SpecValidationError) as err:
         resolve_scale("converged", path=bad)
     assert "method_max_minutes: unknown method 'marionett' (did you mean 'marionet'?)" in \
