@@ -377,7 +377,7 @@ def test_train_jobs_carry_the_schedule_only_when_training_until_the_plateau():
     assert quick and all("schedule" not in c for c in quick)
     assert conv and all(c["schedule"]["until"] == "plateau" for c in conv)
     caps = {c["method"]: c["schedule"]["max_minutes"] for c in conv}
-    assert caps == {"macvae": 60.0, "actor": 90.0}  # their own caps (method_max_minutes)
+    assert caps == {"macvae": 60.0, "actor": 240.0}  # their own caps (method_max_minutes)
     assert all("method_max_minutes" not in c["schedule"] for c in conv)
 
 
