@@ -524,10 +524,11 @@ def test_converged_tables_and_curves_are_on_the_page(tmp_path, monkeypatch):
     page = "\n".join(ln.rstrip() for ln in
                      (repo_root() / "docs" / "results.md").read_text().splitlines())
     for p in CONVERGED:
-        table = _run(p)[0]["table"]
+        rj = _run(p)[0]
+        table = rj["table"]
         # a table's first converged record has <table>.png, a later one <table>-<run id>.png
         names = [table.replace("/", "-") + ".png",
-                 table.replace("/", "-") + f"-{_run(p)[0]['run_id']}.png"]
+                 table.replace("/", "-") + f"-{rj['run_id']}.png"]
         assert any((RESULTS / "converged" / "curves" / n).is_file()
                    and f"results/converged/curves/{n}" in page for n in names), table
         for t in json.loads((p / "trainings.json").read_text())["trainings"]:
