@@ -459,7 +459,8 @@ def test_current_quick_records_were_made_under_the_pin():
 # -- at convergence (issue 32): the page opens with the claims of the converged run -------------
 CONVERGED = _records("converged")
 #: the specs the converged run covers (the others are named on the page as not run)
-CONVERGED_TABLES = {"marionette/table1", "multiact/table2", "multiact/tableB", "odmo/table3"}
+CONVERGED_TABLES = {"marionette/table1", "marionette/table4", "multiact/table2", "multiact/tableB",
+                    "odmo/table3"}
 
 
 def test_there_are_converged_records_one_table_per_paper():
