@@ -460,7 +460,7 @@ def test_current_quick_records_were_made_under_the_pin():
 CONVERGED = _records("converged")
 #: the specs the converged run covers (the others are named on the page as not run)
 CONVERGED_TABLES = {"marionette/table1", "marionette/table4", "multiact/table2", "multiact/tableB",
-                    "odmo/table3"}
+                    "odmo/table3", "odmo/table4"}
 
 
 def test_there_are_converged_records_one_table_per_paper():
